@@ -1,0 +1,81 @@
+"""Benchmarks that print a table and write results files (Markdown + JSON).
+
+``solver``: converged solve time and peak memory per grid size.  Each case runs in its own
+process (``hjrno solve --json``) so peak RSS is that case's alone.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+SOLVER_CASES = [
+    ("disk", "32,32,9,16"),
+    ("disk", "40,40,12,20"),
+    ("disk", "50,50,15,24"),
+    ("room", "40,40,12,20"),
+    ("air3d", "51,40,50"),
+]
+
+
+def _machine() -> str:
+    return f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
+
+
+def bench_solver(out: Path, quick: bool = False) -> list[dict]:
+    rows = []
+    for name, grid in SOLVER_CASES[:1] if quick else SOLVER_CASES:
+        cmd = [sys.executable, "-m", "hjrno_ros.cli", "solve", "--scenario", name, "--grid", grid, "--json",
+               "--no-plot", "--out", str(out / "tmp")]
+        start = time.perf_counter()
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        total = time.perf_counter() - start
+        if proc.returncode not in (0, 3):
+            raise RuntimeError(f"bench case {name} {grid} failed: {proc.stderr.strip().splitlines()[-1:]}")
+        result = json.loads(proc.stdout.strip().splitlines()[-1])
+        report = result["report"]
+        shape = [int(v) for v in grid.split(",")]
+        row = {
+            "problem": name,
+            "grid": "x".join(map(str, shape)),
+            "points_M": round(math.prod(shape) / 1e6, 3),
+            "converged": report["converged"],
+            "horizon_s": report["horizon"],
+            "solve_wall_s": round(report["wall_time"], 1),
+            "process_wall_s": round(total, 1),
+            "peak_rss_MB": round(result["peak_rss_mb"]),
+            "brt_fraction": round(result["brt_fraction"], 4),
+        }
+        rows.append(row)
+        print(" | ".join(f"{k}={v}" for k, v in row.items()), flush=True)
+    shutil.rmtree(out / "tmp", ignore_errors=True)
+    return rows
+
+
+def _markdown(title: str, rows: list[dict], note: str) -> str:
+    keys = list(rows[0])
+    lines = [f"# {title}", "", note, "", "| " + " | ".join(keys) + " |", "|" + " --- |" * len(keys)]
+    lines += ["| " + " | ".join(str(r[k]) for k in keys) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def run(what: str, out: Path, quick: bool = False) -> int:
+    out.mkdir(parents=True, exist_ok=True)
+    if what != "solver":
+        raise ValueError(f"unknown benchmark {what!r}")
+    rows = bench_solver(out, quick)
+    note = (f"`hjrno bench solver` on {_machine()}, {time.strftime('%Y-%m-%d')}. JAX CPU, float32, accuracy high "
+            "(WENO3 + RK3), converged when max |dV| per simulated second < 1e-3 (car: interior, Air3D: band "
+            "near V = 0). solve_wall_s includes JIT compilation; process_wall_s adds imports and start-up.")
+    stem = "solver_quick" if quick else "solver"
+    (out / f"{stem}.md").write_text(_markdown("Solver benchmark", rows, note))
+    (out / f"{stem}.json").write_text(json.dumps({"machine": _machine(), "rows": rows}, indent=1))
+    print(f"wrote {out / (stem + '.md')}")
+    return 0
