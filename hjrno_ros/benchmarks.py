@@ -72,8 +72,9 @@ def run(what: str, out: Path, quick: bool = False) -> int:
         raise ValueError(f"unknown benchmark {what!r}")
     rows = bench_solver(out, quick)
     note = (f"`hjrno bench solver` on {_machine()}, {time.strftime('%Y-%m-%d')}. JAX CPU, float32, accuracy high "
-            "(WENO3 + RK3), converged when max |dV| per simulated second < 1e-3 (car: interior, Air3D: band "
-            "near V = 0). solve_wall_s includes JIT compilation; process_wall_s adds imports and start-up.")
+            "(WENO3 + RK3), converged when max |dV| per simulated second < 1e-3 (disk: over the interior; room "
+            "and Air3D: over the band near V = 0). solve_wall_s includes JIT compilation; process_wall_s adds "
+            "imports and start-up.")
     stem = "solver_quick" if quick else "solver"
     (out / f"{stem}.md").write_text(_markdown("Solver benchmark", rows, note))
     (out / f"{stem}.json").write_text(json.dumps({"machine": _machine(), "rows": rows}, indent=1))
