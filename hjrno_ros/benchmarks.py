@@ -2,10 +2,12 @@
 
 ``solver``: converged solve time and peak memory per grid size.  Each case runs in its own
 process (``hjrno solve --json``) so peak RSS is that case's alone.
+``dataset``: the paper's "Dataset Time" and "Data Size" columns per scenario family.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -59,6 +61,40 @@ def bench_solver(out: Path, quick: bool = False) -> list[dict]:
     return rows
 
 
+DATASET_FAMILIES = ("single", "two", "indoor", "velocity", "parametric", "air3d")
+
+
+def bench_dataset(out: Path, samples: int, quick: bool = False) -> list[dict]:
+    """Per-sample solve cost and stored bytes per family at its default config, times the paper's counts."""
+    from . import dataset
+
+    rows = []
+    for family in DATASET_FAMILIES[:1] if quick else DATASET_FAMILIES:
+        config = dataset.load_config(family)
+        probe = dataclasses.replace(config, name=f"bench-{family}", n_train=samples, n_test=0)
+        root = out / "tmp" / family
+        shutil.rmtree(root, ignore_errors=True)
+        summary = dataset.generate(probe, root, progress=False)
+        per_sample = summary["wall_s"] / samples
+        bytes_per_sample = summary["bytes"] / samples
+        count = config.n_train + config.n_test
+        row = {
+            "experiment": family,
+            "grid": "x".join(map(str, config.grid)),
+            "train/test": f"{config.n_train}/{config.n_test}",
+            "measured_samples": samples,
+            "converged": f"{samples - summary['not_converged']}/{samples}",
+            "s_per_sample": round(per_sample, 1),
+            "dataset_time_h": round(per_sample * count / 3600, 2),
+            "MB_per_sample": round(bytes_per_sample / 1e6, 2),
+            "data_size_MB": round(bytes_per_sample * count / 1e6),
+        }
+        rows.append(row)
+        print(" | ".join(f"{k}={v}" for k, v in row.items()), flush=True)
+    shutil.rmtree(out / "tmp", ignore_errors=True)
+    return rows
+
+
 def _markdown(title: str, rows: list[dict], note: str) -> str:
     keys = list(rows[0])
     lines = [f"# {title}", "", note, "", "| " + " | ".join(keys) + " |", "|" + " --- |" * len(keys)]
@@ -68,6 +104,14 @@ def _markdown(title: str, rows: list[dict], note: str) -> str:
 
 def run(what: str, out: Path, quick: bool = False) -> int:
     out.mkdir(parents=True, exist_ok=True)
+    if what == "dataset":
+        samples = 1 if quick else 3
+        rows = bench_dataset(out, samples, quick)
+        note = (f"`hjrno bench dataset` on {_machine()}, {time.strftime('%Y-%m-%d')}, one solver process. "
+                f"Measured: {samples} training sample(s) per family at its default config "
+                "(config/experiments/*.yaml), solved and stored; dataset_time_h and data_size_MB are that "
+                "per-sample cost times the paper's sample count (train + test), not a full run.")
+        return _write(out, "dataset_quick" if quick else "dataset", "Dataset benchmark", rows, note)
     if what != "solver":
         raise ValueError(f"unknown benchmark {what!r}")
     rows = bench_solver(out, quick)
@@ -75,8 +119,11 @@ def run(what: str, out: Path, quick: bool = False) -> int:
             "(WENO3 + RK3), converged when max |dV| per simulated second < 1e-3 (disk: over the interior; room "
             "and Air3D: over the band near V = 0). solve_wall_s includes JIT compilation; process_wall_s adds "
             "imports and start-up.")
-    stem = "solver_quick" if quick else "solver"
-    (out / f"{stem}.md").write_text(_markdown("Solver benchmark", rows, note))
-    (out / f"{stem}.json").write_text(json.dumps({"machine": _machine(), "rows": rows}, indent=1))
+    return _write(out, "solver_quick" if quick else "solver", "Solver benchmark", rows, note)
+
+
+def _write(out: Path, stem: str, title: str, rows: list[dict], note: str) -> int:
+    (out / f"{stem}.md").write_text(_markdown(title, rows, note))
+    (out / f"{stem}.json").write_text(json.dumps({"machine": _machine(), "note": note, "rows": rows}, indent=1))
     print(f"wrote {out / (stem + '.md')}")
     return 0

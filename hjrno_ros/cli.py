@@ -1,7 +1,10 @@
 """``hjrno``: the package's command line (no ROS needed).
 
     hjrno solve --scenario disk|room|air3d [--grid 40,40,12,20] [--out DIR]
-    hjrno bench solver [--out benchmarks/results]
+    hjrno generate --experiment NAME [--config FILE] [--out DIR] [--shard K/N] [--workers W]
+    hjrno merge --out DIR [SHARD_DIR ...]
+    hjrno show --dataset FILE
+    hjrno bench solver|dataset [--out benchmarks/results]
 """
 
 from __future__ import annotations
@@ -79,6 +82,38 @@ def cmd_solve(args: argparse.Namespace) -> int:
     return 0 if report.converged else 3
 
 
+def cmd_generate(args: argparse.Namespace) -> int:
+    """Solve an experiment's train and test splits into HDF5 (resumable, shardable)."""
+    from . import dataset
+
+    config = dataset.load_config(args.experiment, args.config)
+    out = Path(args.out) if args.out else Path("data") / config.name
+    summary = dataset.generate(config, out, shard=args.shard, workers=args.workers, progress=not args.quiet)
+    outputs = ", ".join(summary["outputs"]) or "none yet (other shards pending; then `hjrno merge`)"
+    print(f"{config.name}: solved {summary['solved']} sample(s) in {summary['wall_s']:.1f} s, "
+          f"{summary['not_converged']} not converged (flagged); outputs: {outputs} "
+          f"({summary['bytes'] / 1e6:.1f} MB)")
+    return 0
+
+
+def cmd_merge(args: argparse.Namespace) -> int:
+    from . import dataset
+
+    outputs = dataset.merge(Path(args.out), [Path(s) for s in args.shards])
+    print("wrote " + ", ".join(map(str, outputs)))
+    return 0
+
+
+def cmd_show(args: argparse.Namespace) -> int:
+    from . import dataset, plotting
+
+    split = dataset.load_split(args.dataset)
+    out = Path(args.out) if args.out else Path(args.dataset).with_suffix(".png")
+    plotting.dataset_samples(out, split, args.samples)
+    print(f"wrote {out}")
+    return 0
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from . import benchmarks
 
@@ -102,8 +137,28 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_solve)
 
+    p = sub.add_parser("generate", help="solve an experiment's datasets (resumable, shardable)")
+    p.add_argument("--experiment", required=True, help="single | two | indoor | velocity | parametric | air3d | ci")
+    p.add_argument("--config", default=None, help="YAML file (default: config/experiments/EXPERIMENT.yaml)")
+    p.add_argument("--out", default=None, help="experiment folder (default: data/EXPERIMENT)")
+    p.add_argument("--shard", default=None, help="K/N: only samples with index mod N == K")
+    p.add_argument("--workers", type=int, default=1, help="solver processes (default 1)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_generate)
+
+    p = sub.add_parser("merge", help="combine shard folders into consolidated train/test files")
+    p.add_argument("--out", required=True, help="experiment folder to complete")
+    p.add_argument("shards", nargs="*", help="other shard folders of the same experiment")
+    p.set_defaults(func=cmd_merge)
+
+    p = sub.add_parser("show", help="PNG of a dataset's obstacles and BRT slices")
+    p.add_argument("--dataset", required=True, help="a train.h5 or test.h5 file")
+    p.add_argument("--samples", type=int, default=4, help="how many samples (default 4)")
+    p.add_argument("--out", default=None, help="PNG path (default: next to the dataset)")
+    p.set_defaults(func=cmd_show)
+
     p = sub.add_parser("bench", help="run a benchmark and write its results table")
-    p.add_argument("what", choices=["solver"])
+    p.add_argument("what", choices=["solver", "dataset"])
     p.add_argument("--out", default="benchmarks/results", help="results folder")
     p.add_argument("--quick", action="store_true", help="smallest case only (smoke run)")
     p.set_defaults(func=cmd_bench)

@@ -26,6 +26,9 @@ def atomic_h5(path: str | os.PathLike, write: Callable[[h5py.File], None]) -> Pa
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file the usual permissions
     try:
         with h5py.File(tmp, "w") as f:
             write(f)
