@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import resource
 import sys
@@ -87,6 +88,10 @@ def cmd_generate(args: argparse.Namespace) -> int:
     from . import dataset
 
     config = dataset.load_config(args.experiment, args.config)
+    overrides = (("grid", args.grid), ("n_train", args.n_train), ("n_test", args.n_test))
+    changes = {k: v for k, v in overrides if v is not None}
+    if changes:
+        config = dataclasses.replace(config, **changes)
     out = Path(args.out) if args.out else Path("data") / config.name
     summary = dataset.generate(config, out, shard=args.shard, workers=args.workers, progress=not args.quiet)
     outputs = ", ".join(summary["outputs"]) or "none yet (other shards pending; then `hjrno merge`)"
@@ -111,6 +116,35 @@ def cmd_show(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path(args.dataset).with_suffix(".png")
     plotting.dataset_samples(out, split, args.samples)
     print(f"wrote {out}")
+    return 0
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    """Train an operator on an experiment's dataset; writes safetensors + model card."""
+    from .training import TrainConfig, train
+
+    data = args.data or f"data/{args.experiment}"
+    out = args.out or f"out/models/{Path(data).name}_{args.model}"
+    try:
+        model_config = json.loads(args.model_config) if args.model_config else {}
+    except json.JSONDecodeError as err:
+        raise ValueError(f"--model-config is not JSON: {err}") from None
+    cfg = TrainConfig(data=data, model=args.model, model_config=model_config, epochs=args.epochs,
+                      slices_per_epoch=args.slices_per_epoch, batch=args.batch, lr=args.lr, seed=args.seed,
+                      max_minutes=args.max_minutes, out=out)
+    weights = train(cfg, progress=not args.quiet)
+    print(f"wrote {weights} and {Path(out).name}.json")
+    return 0
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from . import evaluation
+
+    figures = Path(args.out) / "figures" if args.figure else None
+    for row in evaluation.evaluate(args.model, args.data, train_limit=args.train_limit, figures=figures):
+        table = evaluation.record(row, args.out)
+        print(" | ".join(f"{k}={v}" for k, v in row.items()))
+    print(f"updated {table}")
     return 0
 
 
@@ -141,6 +175,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--experiment", required=True, help="single | two | indoor | velocity | parametric | air3d | ci")
     p.add_argument("--config", default=None, help="YAML file (default: config/experiments/EXPERIMENT.yaml)")
     p.add_argument("--out", default=None, help="experiment folder (default: data/EXPERIMENT)")
+    p.add_argument("--grid", type=_shape, default=None, help="override the config's grid, e.g. 32,32,9,16")
+    p.add_argument("--n-train", type=int, default=None, help="override the number of training samples")
+    p.add_argument("--n-test", type=int, default=None, help="override the number of test samples")
     p.add_argument("--shard", default=None, help="K/N: only samples with index mod N == K")
     p.add_argument("--workers", type=int, default=1, help="solver processes (default 1)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -157,6 +194,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="PNG path (default: next to the dataset)")
     p.set_defaults(func=cmd_show)
 
+    p = sub.add_parser("train", help="train a neural operator on a generated dataset")
+    p.add_argument("--experiment", default="single", help="dataset name under data/ (default: single)")
+    p.add_argument("--data", default=None, help="dataset folder with train.h5/test.h5 (default: data/EXPERIMENT)")
+    p.add_argument("--model", default="fno", choices=["fno", "tno", "cnn"])
+    p.add_argument("--model-config", default=None, help='JSON overrides, e.g. \'{"width": 32}\'')
+    p.add_argument("--epochs", type=int, default=10)
+    p.add_argument("--slices-per-epoch", type=int, default=8192)
+    p.add_argument("--batch", type=int, default=16)
+    p.add_argument("--lr", type=float, default=3e-3)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--max-minutes", type=float, default=30.0, help="wall-time budget (checkpoint and stop)")
+    p.add_argument("--out", default=None, help="model stem (default: out/models/DATA_MODEL)")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("evaluate", help="paper-style metrics of a trained model; updates the results table")
+    p.add_argument("--model", required=True, help="model stem or .safetensors/.json path")
+    p.add_argument("--data", default=None, help="dataset folder (default: the one in the model card)")
+    p.add_argument("--out", default="benchmarks/results", help="results folder")
+    p.add_argument("--train-limit", type=int, default=20, help="training samples scored (default 20)")
+    p.add_argument("--figure", action="store_true", help="also write a ground truth | prediction | error PNG")
+    p.set_defaults(func=cmd_evaluate)
+
     p = sub.add_parser("bench", help="run a benchmark and write its results table")
     p.add_argument("what", choices=["solver", "dataset"])
     p.add_argument("--out", default="benchmarks/results", help="results folder")
@@ -169,7 +229,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except (ValueError, FloatingPointError) as err:
+    except (ValueError, FloatingPointError, RuntimeError) as err:
         print(f"hjrno {args.command}: error: {err}", file=sys.stderr)
         return 2
 

@@ -1,0 +1,97 @@
+"""Models on disk: safetensors weights plus a JSON model card, nothing else.
+
+``<stem>.safetensors`` holds tensors only (no code, no pickle); ``<stem>.json`` holds the
+architecture and its config, input normalisation, window and grid, dynamics parameters, the
+dataset, training facts, metrics and the command that reproduces the model.  Both are written
+atomically; loading refuses anything that is not such a pair, with a one-line reason.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
+
+CARD_FORMAT = "hjrno-model-1"
+REQUIRED = ("format", "kind", "config", "inputs", "grid", "dynamics")
+
+
+def paths(stem: str | Path) -> tuple[Path, Path]:
+    """(weights, card) of a model stem; accepts the stem or either file's path."""
+    stem = Path(stem)
+    if stem.suffix in (".safetensors", ".json"):
+        stem = stem.with_suffix("")
+    return stem.with_name(stem.name + ".safetensors"), stem.with_name(stem.name + ".json")
+
+
+def _atomic_write(path: Path, write) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        write(tmp)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def save(stem: str | Path, tensors: dict[str, torch.Tensor], card: dict) -> tuple[Path, Path]:
+    """Write weights (any flat dict of tensors) and the card; returns their paths."""
+    weights, card_path = paths(stem)
+    card = {"format": CARD_FORMAT, **card}
+    missing = [k for k in REQUIRED if k not in card]
+    if missing:
+        raise ValueError(f"model card lacks {missing}")
+    text = json.dumps(card, indent=1, sort_keys=False)
+    flat = {k: v.detach().contiguous().cpu() for k, v in tensors.items()}
+    _atomic_write(weights, lambda tmp: save_file(flat, tmp, metadata={"format": CARD_FORMAT}))
+    _atomic_write(card_path, lambda tmp: Path(tmp).write_text(text))
+    return weights, card_path
+
+
+def load_card(stem: str | Path) -> dict:
+    _, card_path = paths(stem)
+    if not card_path.is_file():
+        raise ValueError(f"model card {card_path} not found")
+    try:
+        card = json.loads(card_path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise ValueError(f"model card {card_path} is not valid JSON ({err})") from None
+    if not isinstance(card, dict) or card.get("format") != CARD_FORMAT:
+        found = card.get("format") if isinstance(card, dict) else None
+        raise ValueError(f"{card_path} is not an hjrno model card (format {found!r})")
+    missing = [k for k in REQUIRED if k not in card]
+    if missing:
+        raise ValueError(f"model card {card_path} lacks {missing}")
+    return card
+
+
+def load_tensors(stem: str | Path) -> dict[str, torch.Tensor]:
+    weights, _ = paths(stem)
+    if not weights.is_file():
+        raise ValueError(f"model weights {weights} not found")
+    try:
+        return load_file(weights)
+    except (SafetensorError, OSError, ValueError, RuntimeError) as err:
+        raise ValueError(f"{weights} is not a readable safetensors file ({str(err).splitlines()[0]})") from None
+
+
+def load_model(stem: str | Path, device: str | torch.device = "cpu") -> tuple[torch.nn.Module, dict]:
+    """(model in eval mode, card) from a safetensors + JSON pair; ValueError on anything else."""
+    from .operators import build_model
+
+    card = load_card(stem)
+    model = build_model(card["kind"], **card["config"])
+    tensors = {k[len("model."):]: v for k, v in load_tensors(stem).items() if k.startswith("model.")}
+    expected = model.state_dict()
+    if set(tensors) != set(expected) or any(tensors[k].shape != expected[k].shape for k in expected):
+        raise ValueError(f"{paths(stem)[0]} does not match the architecture in its model card")
+    model.load_state_dict(tensors)
+    return model.to(device).eval(), card

@@ -1,0 +1,176 @@
+"""Evaluating trained operators like the HJRNO paper (Tables 1-2), plus safety-relevant metrics.
+
+Errors are over whole value tables: every (v, θ) slice of a sample is predicted and compared.
+- relative L2: ‖V_pred − V_gt‖₂ / ‖V_gt‖₂ per sample, averaged over samples;
+- BRT IoU: |{V_pred ≤ 0} ∩ {V_gt ≤ 0}| / |{V_pred ≤ 0} ∪ {V_gt ≤ 0}|;
+- false-safe rate: among states with V_gt ≤ 0, the fraction predicted safe (V_pred > 0).
+Results accumulate in ``<out>/evaluation.json`` (one row per experiment and model) and are
+rendered to ``evaluation.md`` and ``evaluation.csv``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from . import checkpoint
+from .dataset import load_split
+from .slices import InputSpec
+
+
+@torch.no_grad()
+def predict_table(model, spec: InputSpec, grid, target: np.ndarray, params: np.ndarray | None = None,
+                  batch: int = 64) -> np.ndarray:
+    """V_pred on the whole grid of one sample (l given on the same grid), in metres."""
+    angle_axis = grid.ndim - 1
+    rest = grid.shape[2:]
+    index = np.stack(np.unravel_index(np.arange(int(np.prod(rest))), rest), -1)
+    out = np.empty(grid.shape, np.float32)
+    for i in range(0, len(index), batch):
+        sl = index[i:i + batch]
+        v0 = np.stack([target[(slice(None), slice(None), *s)] for s in sl])
+        v = grid.axis(2)[sl[:, 0]] if spec.kind == "car" else np.zeros(len(sl))
+        angle = grid.axis(angle_axis)[sl[:, -1]]
+        p = None if params is None else np.repeat(params[None], len(sl), 0)
+        pred = model(spec.inputs(v0, v, angle, p))[:, 0].numpy() * spec.value_scale
+        for k, s in enumerate(sl):
+            out[(slice(None), slice(None), *s)] = pred[k]
+    return out
+
+
+def sample_params(spec: InputSpec, scenario) -> np.ndarray | None:
+    """The varying parameters of a scenario in the spec's channel order (None if there are none)."""
+    return np.array([scenario.params[k] for k in spec.param_ranges], np.float32) if spec.param_ranges else None
+
+
+def table_metrics(pred: np.ndarray, truth: np.ndarray) -> dict:
+    unsafe_t, unsafe_p = truth <= 0, pred <= 0
+    union = np.sum(unsafe_t | unsafe_p)
+    return {
+        "rel_l2": float(np.linalg.norm(pred - truth) / max(np.linalg.norm(truth), 1e-12)),
+        "iou": float(np.sum(unsafe_t & unsafe_p) / union) if union else 1.0,
+        "false_safe": float(np.mean(~unsafe_p[unsafe_t])) if unsafe_t.any() else 0.0,
+    }
+
+
+def split_metrics(model, spec: InputSpec, split, limit: int | None = None) -> dict:
+    n = len(split.target) if limit is None else min(limit, len(split.target))
+    rows = []
+    for i in range(n):
+        params = sample_params(spec, split.scenarios[i])
+        rows.append(table_metrics(predict_table(model, spec, split.grid, split.target[i], params), split.value[i]))
+    return {k: float(np.mean([r[k] for r in rows])) for k in rows[0]} | {"n": n}
+
+
+@torch.no_grad()
+def inference_ms(model, spec: InputSpec, shape: tuple[int, int], repeats: int = 30) -> float:
+    """Median wall time of one 2D slice (batch 1) through the model, ms."""
+    x = spec.inputs(np.zeros((1, *shape), np.float32), np.zeros(1), np.zeros(1),
+                    np.ones((1, len(spec.param_ranges)), np.float32) if spec.param_ranges else None)
+    for _ in range(3):
+        model(x)
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        model(x)
+        times.append(time.perf_counter() - t)
+    return 1e3 * float(np.median(times))
+
+
+def evaluate(stem: str | Path, data: str | Path | None = None, train_limit: int = 20,
+             figures: str | Path | None = None) -> list[dict]:
+    """Results rows of a trained model, one per dataset folder (its card's, or ``data``); with
+    ``figures``, also a ground truth | prediction | error PNG per folder there."""
+    model, card = checkpoint.load_model(stem)
+    folders = [Path(d) for d in (str(data).split(",") if data else card["dataset"]["folders"])]
+    return [_evaluate_folder(model, card, Path(stem), folder, train_limit, figures) for folder in folders]
+
+
+def _evaluate_folder(model, card: dict, stem: Path, data: Path, train_limit: int, figures) -> dict:
+    spec = InputSpec.from_dict(card["inputs"])
+    train, test = load_split(data / "train.h5", converged_only=True), load_split(data / "test.h5", converged_only=True)
+    if figures:
+        error_figure(model, card, test, Path(figures) / f"{test.config.name}_{checkpoint.paths(stem)[0].stem}.png")
+    tr, te = split_metrics(model, spec, train, train_limit), split_metrics(model, spec, test)
+    solve_s = float(np.mean([r["wall_time"] for r in train.reports + test.reports]))
+    infer = inference_ms(model, spec, tuple(test.grid.shape[:2]))
+    weights, _ = checkpoint.paths(stem)
+    return {
+        "experiment": test.config.name,
+        "model": f"{card['kind']} ({checkpoint.paths(stem)[0].stem})",
+        "grid": "x".join(map(str, test.grid.shape)),
+        "n_train/n_test": f"{len(train.scenarios)}/{len(test.scenarios)}",
+        "train_rel_l2": round(tr["rel_l2"], 4),
+        "test_rel_l2": round(te["rel_l2"], 4),
+        "test_iou": round(te["iou"], 4),
+        "test_false_safe": round(te["false_safe"], 4),
+        "dataset_time_h": round(float(train.attrs["solve_wall_s"] + test.attrs["solve_wall_s"]) / 3600, 2),
+        "train_time_min": round(card["training"].get("wall_s", float("nan")) / 60, 1),
+        "params_M": round(card["parameters"] / 1e6, 3),
+        "train_peak_MB": card["training"].get("peak_rss_mb"),
+        "data_MB": round(sum((data / f"{s}.h5").stat().st_size for s in ("train", "test")) / 1e6, 1),
+        "checkpoint_MB": round(weights.stat().st_size / 1e6, 2),
+        "solve_s": round(solve_s, 1),
+        "infer_ms": round(infer, 2),
+        "speedup": round(1e3 * solve_s / infer),
+        "train_samples_scored": tr["n"],
+    }
+
+
+def record(row: dict, out: str | Path) -> Path:
+    """Add or replace the row for (experiment, model) and re-render evaluation.md/.csv."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    store = out / "evaluation.json"
+    rows = json.loads(store.read_text()) if store.exists() else []
+    rows = [r for r in rows if (r["experiment"], r["model"]) != (row["experiment"], row["model"])] + [row]
+    rows.sort(key=lambda r: (r["experiment"], r["model"]))
+    store.write_text(json.dumps(rows, indent=1))
+    keys = list(dict.fromkeys(k for r in rows for k in r))
+    with open(out / "evaluation.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, keys)
+        writer.writeheader()
+        writer.writerows(rows)
+    lines = ["# Operator evaluation", "",
+             "Written by `hjrno evaluate`. Errors over whole value tables (all v, θ slices) of the test split; "
+             "train error on up to `train_samples_scored` training samples. solve_s: mean ground-truth solve of "
+             "one sample on this machine; infer_ms: one 2D slice, batch 1, CPU; speedup = solve / one slice.", "",
+             "| " + " | ".join(keys) + " |", "|" + " --- |" * len(keys)]
+    lines += ["| " + " | ".join(str(r.get(k, "")) for k in keys) + " |" for r in rows]
+    (out / "evaluation.md").write_text("\n".join(lines) + "\n")
+    return out / "evaluation.md"
+
+
+def error_figure(model, card: dict, test, path: str | Path) -> Path:
+    """Ground truth | prediction | error for the first test sample at mid speed, θ = 0."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    spec = InputSpec.from_dict(card["inputs"])
+    pred = predict_table(model, spec, test.grid, test.target[0], sample_params(spec, test.scenarios[0]))
+    mid = (test.grid.shape[3] // 2,) if test.grid.ndim == 4 else ()
+    idx = (slice(None), slice(None), test.grid.shape[2] // 2, *mid)
+    x, y = test.grid.axis(0), test.grid.axis(1)
+    fig, axes = plt.subplots(1, 3, figsize=(11, 3.4))
+    for ax, data_, title in zip(axes, (test.value[0][idx], pred[idx], pred[idx] - test.value[0][idx]),
+                                ("ground truth V∞", f"{card['kind'].upper()} prediction", "error"), strict=True):
+        im = ax.pcolormesh(x, y, data_.T, shading="auto", cmap="RdBu" if title == "error" else "viridis")
+        if title != "error":
+            ax.contour(x, y, data_.T, levels=[0.0], colors="w")
+        ax.set_title(title, fontsize=10)
+        ax.set_aspect("equal")
+        fig.colorbar(im, ax=ax, shrink=0.8)
+    fig.suptitle(f"{test.config.name}: test sample 0, mid v, θ = 0", fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path

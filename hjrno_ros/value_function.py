@@ -1,0 +1,80 @@
+"""A trained operator behind one call: an obstacle window + the robot state → V and ∇V.
+
+The model was trained on windows of fixed physical size (``window``, from its card) centred on
+the origin; at run time the window is centred on the robot, axis-aligned with the map frame, so
+headings stay map-frame headings.  V0 is the signed distance sampled at the model's x-y nodes
+(any resolution of the same window works: the operators are discretisation invariant).  For the
+filter, the operator predicts the 3 × 3 (v, θ) slices around the robot's speed and heading, and a
+:class:`ValueTable` over that stencil gives V and ∇V (x, y, v, θ) at the state.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from . import checkpoint
+from .dynamics import CarParams
+from .grids import GridSpec
+from .slices import InputSpec
+from .value_table import ValueTable
+
+
+class LearnedValueFunction:
+    def __init__(self, stem, device: str | torch.device | None = None, threads: int | None = None):
+        device = device or ("cuda" if torch.cuda.is_available() else "cpu")
+        if threads:
+            torch.set_num_threads(threads)
+        self.model, self.card = checkpoint.load_model(stem, device)
+        self.device = torch.device(device)
+        self.spec = InputSpec.from_dict(self.card["inputs"])
+        if self.spec.kind != "car":
+            raise ValueError(f"{stem}: the filter needs a car model, this one is {self.spec.kind!r}")
+        self.grid = GridSpec.from_dict(self.card["grid"])
+        self.params = CarParams(**self.card["dynamics"])
+        self.epsilon = self.card.get("epsilon")
+
+    @property
+    def window(self) -> tuple[float, float]:
+        """Physical window size (x, y) in metres."""
+        return self.grid.hi[0] - self.grid.lo[0], self.grid.hi[1] - self.grid.lo[1]
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.grid.shape[0], self.grid.shape[1]
+
+    def window_points(self, center: tuple[float, float], shape: tuple[int, int] | None = None) -> np.ndarray:
+        """World (x, y) of the window's nodes, ``(Nx, Ny, 2)``, for a window centred at ``center``."""
+        nx, ny = shape or self.shape
+        x = np.linspace(self.grid.lo[0], self.grid.hi[0], nx) + center[0]
+        y = np.linspace(self.grid.lo[1], self.grid.hi[1], ny) + center[1]
+        return np.stack(np.meshgrid(x, y, indexing="ij"), -1)
+
+    @torch.no_grad()
+    def predict(self, v0: np.ndarray, speeds: np.ndarray, headings: np.ndarray,
+                params: np.ndarray | None = None) -> np.ndarray:
+        """V slices (K, Nx, Ny) in metres for V0 (Nx, Ny) in metres at K (speed, heading) pairs."""
+        v0 = np.asarray(v0, np.float32)
+        if v0.ndim != 2 or not np.all(np.isfinite(v0)):
+            raise ValueError(f"V0 must be a finite 2-D array, got shape {v0.shape}")
+        k = len(speeds)
+        x = self.spec.inputs(np.broadcast_to(v0, (k, *v0.shape)), np.asarray(speeds), np.asarray(headings), params)
+        out = self.model(x.to(self.device))[:, 0].cpu().numpy() * self.spec.value_scale
+        return np.minimum(out, v0[None])  # V∞ ≤ V0 holds for the true value function
+
+    def local_table(self, v0: np.ndarray, center: tuple[float, float], v: float, theta: float) -> ValueTable:
+        """V over the window × a 3 × 3 (v, θ) stencil around (v, θ): evaluate V and ∇V at the state."""
+        dv = self.grid.spacings[2]
+        lo_v, hi_v = self.params.v_min, self.params.v_max
+        v_mid = float(np.clip(v, lo_v + dv, hi_v - dv))
+        dtheta = self.grid.spacings[3]
+        speeds = np.array([v_mid - dv, v_mid, v_mid + dv])
+        headings = np.array([theta - dtheta, theta, theta + dtheta])
+        vv, tt = np.meshgrid(speeds, headings, indexing="ij")
+        slices = self.predict(v0, vv.ravel(), tt.ravel())
+        nx, ny = v0.shape
+        table = np.moveaxis(slices.reshape(3, 3, nx, ny), (0, 1), (2, 3))
+        grid = GridSpec((self.grid.lo[0] + center[0], self.grid.lo[1] + center[1], speeds[0], headings[0]),
+                        (self.grid.hi[0] + center[0], self.grid.hi[1] + center[1], speeds[-1], headings[-1]),
+                        (nx, ny, 3, 3))
+        return ValueTable(grid, table)

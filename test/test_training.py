@@ -1,0 +1,142 @@
+"""Training, checkpoints and evaluation on the tiny `ci` dataset: real solves, real torch, real files."""
+
+import json
+import pickle
+
+import numpy as np
+import pytest
+import torch
+from scipy.interpolate import RegularGridInterpolator
+
+from hjrno_ros import checkpoint, dataset, evaluation
+from hjrno_ros.slices import SliceSet, spec_for
+from hjrno_ros.training import TrainConfig, TrainingDiverged, train
+from hjrno_ros.value_function import LearnedValueFunction
+
+SMALL = {"width": 8, "modes": 4, "n_layers": 2}
+
+
+@pytest.fixture(scope="module")
+def ci_data(tmp_path_factory):
+    root = tmp_path_factory.mktemp("ci_data")
+    dataset.generate(dataset.load_config("ci"), root, progress=False)
+    return root
+
+
+@pytest.fixture(scope="module")
+def trained(ci_data, tmp_path_factory):
+    out = tmp_path_factory.mktemp("model") / "fno"
+    cfg = TrainConfig(data=str(ci_data), model="fno", model_config=SMALL, epochs=3, slices_per_epoch=256,
+                      batch=16, lr=3e-3, out=str(out))
+    train(cfg, progress=False, command="test")
+    return cfg, out
+
+
+def test_inputs_follow_the_slice_convention(ci_data):
+    split = dataset.load_split(ci_data / "train.h5")
+    spec = spec_for(split)
+    assert spec.channels == ["v0", "v", "cos_theta", "sin_theta"]
+    x, y = SliceSet(split, spec).batch(np.array([0, 7]))
+    iv, it = np.unravel_index(7, split.grid.shape[2:])
+    np.testing.assert_allclose(x[1, 0].numpy(), split.target[0, :, :, iv, it] / spec.value_scale, rtol=1e-6)
+    np.testing.assert_allclose(y[1, 0].numpy(), split.value[0, :, :, iv, it] / spec.value_scale, rtol=1e-6)
+    assert x[1, 2, 0, 0].item() == pytest.approx(np.cos(split.grid.axis(3)[it]), abs=1e-6)
+
+
+def test_training_reduces_the_loss_and_writes_a_card(trained):
+    cfg, out = trained
+    card = checkpoint.load_card(out)
+    history = card["training"]["history"]
+    assert len(history) == 3
+    assert history[-1]["train_rel_l2"] < 0.8 * history[0]["train_rel_l2"]
+    assert card["command"] == "test" and card["dataset"]["n_train"] == 4
+    assert card["inputs"]["channels"][0] == "v0" and card["dynamics"]["a_max"] == 1.0
+    assert checkpoint.paths(out)[0].stat().st_size < 10e6
+
+
+def test_checkpoint_round_trip_is_exact(trained, tmp_path):
+    _, out = trained
+    model, card = checkpoint.load_model(out)
+    x = torch.randn(2, 4, 20, 20)
+    with torch.no_grad():
+        before = model(x)
+    checkpoint.save(tmp_path / "copy", {f"model.{k}": v for k, v in model.state_dict().items()}, card)
+    again, _ = checkpoint.load_model(tmp_path / "copy")
+    with torch.no_grad():
+        assert torch.equal(again(x), before)
+
+
+def test_pickles_truncated_and_mismatched_files_are_refused(trained, tmp_path):
+    _, out = trained
+    weights, card_path = checkpoint.paths(out)
+    fake = tmp_path / "fake"
+    (tmp_path / "fake.json").write_text(card_path.read_text())
+    with open(tmp_path / "fake.safetensors", "wb") as fh:
+        pickle.dump({"model.x": torch.zeros(3)}, fh)
+    with pytest.raises(ValueError, match="safetensors"):
+        checkpoint.load_model(fake)
+    (tmp_path / "fake.safetensors").write_bytes(weights.read_bytes()[: weights.stat().st_size // 2])
+    with pytest.raises(ValueError, match="safetensors"):
+        checkpoint.load_model(fake)
+    card = json.loads(card_path.read_text())
+    card["config"]["width"] = 16
+    (tmp_path / "fake.json").write_text(json.dumps(card))
+    (tmp_path / "fake.safetensors").write_bytes(weights.read_bytes())
+    with pytest.raises(ValueError, match="does not match"):
+        checkpoint.load_model(fake)
+    with pytest.raises(ValueError, match="not found"):
+        checkpoint.load_model(tmp_path / "missing")
+    (tmp_path / "fake.json").write_text("{not json")
+    with pytest.raises(ValueError, match="not valid JSON"):
+        checkpoint.load_model(fake)
+
+
+def test_resume_continues_from_the_last_epoch(ci_data, tmp_path):
+    out = tmp_path / "resume"
+    cfg = TrainConfig(data=str(ci_data), model_config=SMALL, epochs=1, slices_per_epoch=64, out=str(out))
+    cfg2 = TrainConfig(**{**cfg.__dict__, "epochs": 2})
+    train(cfg, progress=False)
+    with pytest.raises(ValueError, match="other settings"):
+        train(cfg2, progress=False)  # a different schedule cannot resume this run
+    train(TrainConfig(**{**cfg.__dict__, "max_minutes": 99.0}), progress=False)  # same settings: resumes, no-op
+    assert len(checkpoint.load_card(out)["training"]["history"]) == 1
+
+
+def test_nan_loss_stops_with_a_clear_message(ci_data, tmp_path):
+    cfg = TrainConfig(data=str(ci_data), model_config=SMALL, epochs=1, slices_per_epoch=64, lr=1e30,
+                      out=str(tmp_path / "nan"))
+    with pytest.raises(TrainingDiverged, match="lower --lr"):
+        train(cfg, progress=False)
+
+
+def test_evaluation_reports_paper_columns(trained, ci_data, tmp_path):
+    _, out = trained
+    rows = evaluation.evaluate(out, ci_data, figures=tmp_path / "fig")
+    row = rows[0]
+    assert 0 < row["test_rel_l2"] < 2 and 0 <= row["test_iou"] <= 1 and 0 <= row["test_false_safe"] <= 1
+    assert row["infer_ms"] > 0 and row["params_M"] > 0
+    table = evaluation.record(row, tmp_path)
+    assert "test_rel_l2" in table.read_text()
+    assert list((tmp_path / "fig").glob("*.png"))
+
+
+def test_metrics_are_right_on_known_tables():
+    truth = np.array([-1.0, -1.0, 1.0, 1.0])
+    m = evaluation.table_metrics(np.array([-1.0, 1.0, 1.0, -1.0]), truth)
+    assert m["iou"] == pytest.approx(1 / 3) and m["false_safe"] == pytest.approx(0.5)
+    assert evaluation.table_metrics(truth, truth) == {"rel_l2": 0.0, "iou": 1.0, "false_safe": 0.0}
+
+
+def test_learned_value_function_gives_value_and_gradient(trained):
+    _, out = trained
+    vf = LearnedValueFunction(out, device="cpu")
+    xy = vf.window_points((1.0, 2.0))
+    v0 = np.hypot(xy[..., 0] - 1.0, xy[..., 1] - 3.0) - 0.8  # a disk 1 m north of the window centre
+    table = vf.local_table(v0, (1.0, 2.0), 0.5, 0.3)
+    state = np.array([[1.0, 2.0, 0.5, 0.3]])
+    value, grad = table.value(state), table.gradient(state)
+    assert np.isfinite(value).all() and grad.shape == (1, 4) and np.isfinite(grad).all()
+    v0_at_state = RegularGridInterpolator((xy[:, 0, 0], xy[0, :, 1]), v0)(state[:, :2])[0]
+    assert value[0] <= v0_at_state + 1e-6  # V ≤ V0 by construction
+    with pytest.raises(ValueError, match="finite"):
+        vf.predict(np.full((20, 20), np.nan), np.zeros(1), np.zeros(1))
