@@ -64,12 +64,12 @@ def bench_solver(out: Path, quick: bool = False) -> list[dict]:
 DATASET_FAMILIES = ("single", "two", "indoor", "velocity", "parametric", "air3d")
 
 
-def bench_dataset(out: Path, samples: int, quick: bool = False) -> list[dict]:
+def bench_dataset(out: Path, samples: int, families: tuple[str, ...]) -> list[dict]:
     """Per-sample solve cost and stored bytes per family at its default config, times the paper's counts."""
     from . import dataset
 
     rows = []
-    for family in DATASET_FAMILIES[:1] if quick else DATASET_FAMILIES:
+    for family in families:
         config = dataset.load_config(family)
         probe = dataclasses.replace(config, name=f"bench-{family}", n_train=samples, n_test=0)
         root = out / "tmp" / family
@@ -102,11 +102,15 @@ def _markdown(title: str, rows: list[dict], note: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def run(what: str, out: Path, quick: bool = False) -> int:
+def run(what: str, out: Path, quick: bool = False, only: tuple[str, ...] = ()) -> int:
     out.mkdir(parents=True, exist_ok=True)
     if what == "dataset":
         samples = 1 if quick else 3
-        rows = bench_dataset(out, samples, quick)
+        families = only or (DATASET_FAMILIES[:1] if quick else DATASET_FAMILIES)
+        unknown = set(families) - set(DATASET_FAMILIES)
+        if unknown:
+            raise ValueError(f"unknown families {sorted(unknown)}; choose from {', '.join(DATASET_FAMILIES)}")
+        rows = bench_dataset(out, samples, families)
         note = (f"`hjrno bench dataset` on {_machine()}, {time.strftime('%Y-%m-%d')}, one solver process. "
                 f"Measured: {samples} training sample(s) per family at its default config "
                 "(config/experiments/*.yaml), solved and stored; dataset_time_h and data_size_MB are that "
@@ -123,6 +127,13 @@ def run(what: str, out: Path, quick: bool = False) -> int:
 
 
 def _write(out: Path, stem: str, title: str, rows: list[dict], note: str) -> int:
+    """Write the table; rows of an earlier run for other cases (first column) are kept."""
+    old = out / f"{stem}.json"
+    if old.exists():
+        key = next(iter(rows[0]))
+        fresh = {r[key] for r in rows}
+        kept = [r for r in json.loads(old.read_text())["rows"] if r.get(key) not in fresh]
+        rows = kept + rows
     (out / f"{stem}.md").write_text(_markdown(title, rows, note))
     (out / f"{stem}.json").write_text(json.dumps({"machine": _machine(), "note": note, "rows": rows}, indent=1))
     print(f"wrote {out / (stem + '.md')}")

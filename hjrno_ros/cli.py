@@ -138,8 +138,13 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from . import evaluation
+    from . import checkpoint, evaluation
 
+    if args.superres:
+        data = args.data or checkpoint.load_card(args.model.split(",")[0])["dataset"]["folders"][0]
+        table = evaluation.superresolution(args.model.split(","), data, args.superres, args.samples, args.out)
+        print(Path(table).read_text())
+        return 0
     figures = Path(args.out) / "figures" if args.figure else None
     for row in evaluation.evaluate(args.model, args.data, train_limit=args.train_limit, figures=figures):
         table = evaluation.record(row, args.out)
@@ -151,7 +156,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 def cmd_bench(args: argparse.Namespace) -> int:
     from . import benchmarks
 
-    return benchmarks.run(args.what, Path(args.out), quick=args.quick)
+    only = tuple(args.only.split(",")) if args.only else ()
+    return benchmarks.run(args.what, Path(args.out), quick=args.quick, only=only)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -210,17 +216,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_train)
 
     p = sub.add_parser("evaluate", help="paper-style metrics of a trained model; updates the results table")
-    p.add_argument("--model", required=True, help="model stem or .safetensors/.json path")
+    p.add_argument("--model", required=True, help="model stem or .safetensors/.json path (--superres: comma list)")
     p.add_argument("--data", default=None, help="dataset folder (default: the one in the model card)")
     p.add_argument("--out", default="benchmarks/results", help="results folder")
     p.add_argument("--train-limit", type=int, default=20, help="training samples scored (default 20)")
     p.add_argument("--figure", action="store_true", help="also write a ground truth | prediction | error PNG")
+    p.add_argument("--superres", type=int, default=0, help="zero-shot super-resolution test at this factor")
+    p.add_argument("--samples", type=int, default=3, help="test samples solved at the fine grid (--superres)")
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("bench", help="run a benchmark and write its results table")
     p.add_argument("what", choices=["solver", "dataset"])
     p.add_argument("--out", default="benchmarks/results", help="results folder")
     p.add_argument("--quick", action="store_true", help="smallest case only (smoke run)")
+    p.add_argument("--only", default=None, help="dataset bench: comma-separated families (others keep old rows)")
     p.set_defaults(func=cmd_bench)
     return parser
 

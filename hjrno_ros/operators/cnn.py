@@ -66,4 +66,3 @@ class CNN(NeuralOperator):
         for i in reversed(range(len(self.decoders))):
             h = self.decoders[i](torch.cat([self.ups[i](h), skips[i]], dim=1))
         return self.head(h)[:, :, :nx, :ny]
-

@@ -4,18 +4,23 @@ Lifting (1x1 conv) -> domain padding -> ``n_layers`` x [spectral conv + 1x1 conv
 -> crop -> projection MLP (1x1 conv, GELU, 1x1 conv).
 
 Discretisation invariance.  The grid has ``n`` nodes over [-1, 1] *end points included*, so
-the spacing is h = 2 / (n - 1) and the FFT sees a period of ``N * h`` where ``N`` is the padded
-size.  A Fourier weight acts on the physical frequency k / (N h), so the padded size is chosen
-as ``N = round((1 + 2 * padding) * (n - 1))``: the physical period is then (almost) the same
-at every resolution (2.516 at n = 32, 2.508 at n = 64 with the default padding), instead of
-drifting with n as it would with a fixed cell count.  The FFT uses ``norm="forward"``, so the
-Fourier coefficients are resolution independent.  Modes are clipped to what the padded grid
-supports; a clipped weight keeps its physical frequency (negative frequencies are sliced from
-the high end of their block).
+the spacing is h = 2 / (n - 1), and the FFT sees a period of ``N * h`` where ``N`` is the padded
+size.  A Fourier weight acts on the physical frequency k / (N h), so the padded size is
+``N = round((1 + 2 * padding) * (n - 1))``: the physical period is then (almost) the same at
+every resolution (2.516 at n = 32, 2.508 at n = 64, exactly 2.5 at n = 33, 65, 129 with the
+default padding) instead of drifting with n as a fixed cell count would.  The FFT uses
+``norm="forward"``, so Fourier coefficients do not scale with n.  Modes are clipped to what
+the padded grid supports; a clipped weight keeps its physical frequency.
 
-Padding: zero padding of the lifted field (measured: better invariance than reflect padding,
-whose wrap-around seam between the two mirrored ends is a jump at a resolution-dependent
-place; see the report in test/test_operators.py).  ``pad_mode="reflect"`` is available.
+Domain padding (value functions are not periodic).  All padding cells are appended after the
+last node (a circular convolution does not care where the padding sits on the circle).
+``pad_mode="blend"`` (default) fills them with a linear blend of the reflection about the last
+node and the reflection about the first node: a continuous periodic extension without a seam,
+defined by physical position.  Measured on one spectral convolution of a signed distance
+(rel. max error of the 33-node result against a 513-node one): zeros 0.175, two-sided reflect
+0.095, blend 0.011, and blend converges at second order (zeros and reflect at first order,
+their jump moves with h).  On random 4-layer FNOs, 32 vs 64 nodes: zeros ≈ 5 %, reflect
+≈ 4 %, blend ≈ 0.7 % of the output range.  "zeros" and "reflect" remain available.
 """
 
 from __future__ import annotations
@@ -32,7 +37,7 @@ PAD_MODES = ("blend", "reflect", "zeros")
 
 
 def padded_size(n: int, padding: float) -> int:
-    """Padded FFT length for ``n`` end-point-inclusive nodes: keeps the physical period N h constant."""
+    """Padded FFT length for ``n`` end-point-inclusive nodes: keeps the physical period N h ≈ constant."""
     if padding <= 0.0 or n < 2:
         return n
     return max(n + 2, round((1.0 + 2.0 * padding) * (n - 1)))
@@ -95,8 +100,9 @@ class FNO(NeuralOperator):
     """Fourier neural operator: [B, in_channels, Nx, Ny] -> [B, 1, Nx, Ny] at any resolution.
 
     Config: ``in_channels`` (required), ``width=24``, ``modes=12``, ``n_layers=4``, ``proj=64``,
-    ``padding=0.125`` (fraction of the size added on each side, ≥ 1 cell; 0 = periodic, no
-    padding), ``pad_mode="zeros"`` ("zeros" | "reflect"), ``prior="none"`` ("none" | "below_input").
+    ``padding=0.125`` (fraction of the size per side, 2 * padding * (n - 1) cells in all, at least
+    2; 0 = periodic input, no padding; at most 0.5), ``pad_mode="blend"`` ("blend" | "reflect" |
+    "zeros"), ``prior="none"`` ("none" | "below_input").
     """
 
     kind = "fno"
@@ -110,7 +116,7 @@ class FNO(NeuralOperator):
         n_layers: int = 4,
         proj: int = 64,
         padding: float = 0.125,
-        pad_mode: str = "zeros",
+        pad_mode: str = "blend",
         prior: str = "none",
     ) -> None:
         config: dict[str, Any] = {
@@ -119,7 +125,7 @@ class FNO(NeuralOperator):
             "modes": check_int("modes", modes, 1),
             "n_layers": check_int("n_layers", n_layers, 1),
             "proj": check_int("proj", proj, 1),
-            "padding": check_float("padding", padding, 0.0, 1.0),
+            "padding": check_float("padding", padding, 0.0, 0.5),
             "pad_mode": check_choice("pad_mode", pad_mode, PAD_MODES),
             "prior": prior,
         }
