@@ -99,18 +99,19 @@ def trained_like(model: torch.nn.Module) -> torch.nn.Module:
 @pytest.mark.parametrize("kind", ["fno", "tno"])
 def test_discretisation_invariance(kind):
     # Same physical window at 32² and 64² nodes; the 64² output sampled back at the 32² nodes.
-    # Measured (range-relative max error, seed 0): FNO 0.0080, TNO 0.0044 (FNO over 8 seeds
-    # 0.004-0.010 with "blend" padding; "reflect" ≈ 0.04 and "zeros" ≈ 0.05).  Tolerance 0.03.
+    # Measured (max error relative to the output's range): seed 0 FNO 0.011, TNO 0.0032; seeds
+    # 0-3 FNO 0.004-0.011, TNO 0.003-0.012.  (FNO with "reflect" padding 0.026-0.055, "zeros"
+    # 0.041-0.064.)  Tolerance 0.03.
     torch.manual_seed(0)
     model = trained_like(build_model(kind, in_channels=4)).eval()
     with torch.no_grad():
         coarse, fine = model(window(32)), model(window(64))
-    assert coarse.std() > 0.05  # the output is not trivially flat
+    assert coarse.max() - coarse.min() > 1e-2 * coarse.abs().max()  # spatial structure, not a constant
     assert range_error(coarse, fine) < 0.03
 
 
 def test_fno_padding_modes_rank_as_documented():
-    # blend (continuous periodic extension) beats zero padding by a wide margin: measured 0.008 vs 0.05.
+    # blend (continuous periodic extension) beats zero padding by a wide margin: measured 0.0068 vs 0.047.
     errors = {}
     for mode in ("blend", "zeros"):
         torch.manual_seed(0)
@@ -151,13 +152,21 @@ def test_bad_config_raises_value_error(kind, config, reason):
         build_model(kind, **config)
 
 
-def test_small_fno_overfits_a_fixed_batch():
+@pytest.fixture
+def one_thread():
+    """Tiny tensors gain nothing from threads; on a busy 2-core machine 2 threads made this 20x slower."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def test_small_fno_overfits_a_fixed_batch(one_thread):
     torch.manual_seed(0)
-    n = 24
-    g = torch.linspace(-1.0, 1.0, n)
+    g = torch.linspace(-1.0, 1.0, 20)
     x, y = torch.meshgrid(g, g, indexing="ij")
-    phases = torch.rand(4, 3) * 6.28
-    v0 = torch.stack([torch.sin(2 * x + p[0]) + 0.5 * torch.cos(3 * y + p[1]) + 0.3 * torch.sin(x * y + p[2]) for p in phases])
+    p = torch.rand(3, 4, 1, 1) * 6.28
+    v0 = torch.sin(2 * x + p[0]) + 0.5 * torch.cos(3 * y + p[1]) + 0.3 * torch.sin(x * y + p[2])  # [4, 20, 20]
     inputs = torch.stack([v0, torch.full_like(v0, 0.5)], dim=1)
     target = F.avg_pool2d(inputs[:, :1], 5, stride=1, padding=2, count_include_pad=False).roll(2, dims=2) - 0.3
     model = build_model("fno", in_channels=2, width=8, modes=6, n_layers=2, proj=16)
@@ -169,4 +178,4 @@ def test_small_fno_overfits_a_fixed_batch():
         loss.backward()
         opt.step()
         losses.append(loss.item())
-    assert losses[-1] < 0.5 * losses[0], (losses[0], losses[-1])
+    assert losses[-1] < 0.5 * losses[0], (losses[0], losses[-1])  # measured: 0.90 -> 0.012

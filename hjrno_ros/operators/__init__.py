@@ -14,8 +14,8 @@ Config is keyword-only and JSON-serialisable; ``model.config`` rebuilds the mode
 with ``build_model(model.kind, **model.config)``.  ``prior="below_input"`` makes the output
 ``x[:, 0:1] - softplus(raw)``, so V∞ ≤ V0 holds by construction.
 
-Every parameter is real (the FNO stores its complex spectral weights as ``[..., 2]`` real
-tensors), so state dicts save to safetensors and ``count_parameters`` counts real scalars.
+Every parameter is real (the FNO stores its complex spectral weights with a real / imaginary
+axis), so state dicts save to safetensors and ``count_parameters`` counts real scalars.
 """
 
 from __future__ import annotations
