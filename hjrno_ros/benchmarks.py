@@ -104,6 +104,10 @@ def _markdown(title: str, rows: list[dict], note: str) -> str:
 
 def run(what: str, out: Path, quick: bool = False, only: tuple[str, ...] = ()) -> int:
     out.mkdir(parents=True, exist_ok=True)
+    if what == "node":
+        from . import node_bench
+
+        return node_bench.run(out, seconds=10.0 if quick else 30.0)
     if what == "dataset":
         samples = 1 if quick else 3
         families = only or (DATASET_FAMILIES[:1] if quick else DATASET_FAMILIES)

@@ -41,10 +41,18 @@ Outputs besides the command:
   like OccupancyGrid.data: ``layout.dim[0]`` = ("y", Ny, Nx·Ny), ``layout.dim[1]`` = ("x", Nx, Nx);
   element [iy, ix] is V at (origin + (ix + ½, iy + ½)·resolution) with origin/resolution those of
   the value grid, also given in the status JSON (``value_grid``).
-* ``status_topic`` (std_msgs/String, JSON, 10 Hz): state ok | intervening | fail_closed | bypassed,
-  reason, V at the state, epsilon, inference latency, drop counters, value grid geometry.
+* ``status_topic`` (std_msgs/String, JSON, 10 Hz): ``state`` ok | intervening | fail_closed |
+  bypassed, ``reason``, ``value`` (V at the state, m), ``robot`` (the state used), ``epsilon``,
+  ``inference_latency_ms``, ``filter_ms`` (time in the command callback), ages of odometry, map and
+  value, ``dropped`` counters (cmd, odom, pose, map), ``counts``, ``value_grid`` (frame, origin,
+  resolution, size, centre, v, θ of the published slice), ``last_map_error``, ``model``.
 * ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, 1 Hz): OK (ok, intervening), WARN (bypassed),
-  ERROR (fail_closed); message = reason.
+  ERROR (fail_closed); message = reason; the status fields as key-values.
+
+QoS: map, value grid and pose subscriptions are reliable + transient local, depth 1 (map_server,
+AMCL's ``amcl_pose``); odometry uses sensor-data QoS; commands reliable, depth 10.  The bundled
+model is ``models/default`` in the source tree or ``share/hjrno_ros/models/default`` of the install.
+:class:`BenchDriver` and :func:`bench_drive` at the end are the load generator of ``node_bench``.
 """
 
 from __future__ import annotations
@@ -57,6 +65,7 @@ import math
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -170,9 +179,24 @@ def validate_parameters(cfg: dict[str, Any], startup: bool = False) -> str | Non
 
 
 def bundled_model_candidates() -> list[Path]:
-    """Where the bundled model is looked for: the source checkout, then the ament share folder."""
-    return [Path(__file__).resolve().parents[1] / "models" / "default",
-            Path(sys.prefix) / "share" / "hjrno_ros" / "models" / "default"]
+    """Where the bundled model is looked for: the source checkout, then the package's share folder
+    (ament index via AMENT_PREFIX_PATH, the install prefix this module lives in, sys.prefix)."""
+    here = Path(__file__).resolve()
+    shares = []
+    try:
+        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+
+        try:
+            shares.append(Path(get_package_share_directory("hjrno_ros")))
+        except (PackageNotFoundError, OSError, ValueError):  # OSError: AMENT_PREFIX_PATH unset
+            pass
+    except ImportError:
+        pass
+    if here.parents[1].name == "site-packages":  # <prefix>/lib/pythonX.Y/site-packages/hjrno_ros/brt_node.py
+        shares.append(here.parents[4] / "share" / "hjrno_ros")
+    shares.append(Path(sys.prefix) / "share" / "hjrno_ros")
+    candidates = [here.parents[1] / "models" / "default"] + [share / "models" / "default" for share in shares]
+    return list(dict.fromkeys(candidates))
 
 
 def resolve_model(model_path: str) -> Path:
@@ -360,6 +384,7 @@ class BrtNode(Node):
         self._inference_error = ""
         self._sd_dirty = False
         self._last_cmd: tuple[float, str] | None = None  # (monotonic s, header frame_id)
+        self._cmd_times: collections.deque[float] = collections.deque(maxlen=200)  # s in the command callback
         self._last_decision: safety_filter.Decision | None = None
         self._last_decision_time = -math.inf
 
@@ -376,16 +401,18 @@ class BrtNode(Node):
         self._value_pub = self.create_publisher(Float32MultiArray, cfg["value_topic"], 1)
         self._status_pub = self.create_publisher(String, cfg["status_topic"], 10)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(OccupancyGrid, cfg["map_topic"], self._on_map, map_qos, callback_group=map_group)
-        self.create_subscription(Odometry, cfg["odom_topic"], self._on_odom, qos_profile_sensor_data,
+        self.create_subscription(OccupancyGrid, cfg["map_topic"], self._guard(self._on_map), map_qos,
+                                 callback_group=map_group)
+        self.create_subscription(Odometry, cfg["odom_topic"], self._guard(self._on_odom), qos_profile_sensor_data,
                                  callback_group=state_group)
         if cfg["pose_topic"]:
-            self.create_subscription(PoseWithCovarianceStamped, cfg["pose_topic"], self._on_pose, map_qos,
+            self.create_subscription(PoseWithCovarianceStamped, cfg["pose_topic"], self._guard(self._on_pose), map_qos,
                                      callback_group=state_group)
         self.create_subscription(cmd_type, cfg["cmd_vel_in_topic"], self._on_cmd, 10, callback_group=cmd_group)
-        self._control_timer = self.create_timer(cfg["control_period"], self._on_control_timer, callback_group=cmd_group)
-        self.create_timer(STATUS_PERIOD, self._publish_status, callback_group=misc_group)
-        self.create_timer(DIAGNOSTICS_PERIOD, self._publish_diagnostics, callback_group=misc_group)
+        self._control_timer = self.create_timer(cfg["control_period"], self._guard(self._on_control_timer),
+                                                callback_group=cmd_group)
+        self.create_timer(STATUS_PERIOD, self._guard(self._publish_status), callback_group=misc_group)
+        self.create_timer(DIAGNOSTICS_PERIOD, self._guard(self._publish_diagnostics), callback_group=misc_group)
         self.create_service(SetBool, "~/enable", self._on_enable, callback_group=misc_group)
 
         self._worker = threading.Thread(target=self._inference_loop, name="brt_inference", daemon=True)
@@ -395,6 +422,18 @@ class BrtNode(Node):
             f"{self._vf.window[1]:g} m, {self._vf.shape[0]}x{self._vf.shape[1]} nodes, {self._vf.params}); "
             f"epsilon {self._settings.epsilon:g} m, {self._settings.mode}; {cfg['cmd_vel_in_topic']} -> "
             f"{cfg['cmd_vel_out_topic']} ({cmd_type.__name__})")
+
+    def _guard(self, callback: Callable[..., None]) -> Callable[..., None]:
+        """An exception in any callback would stop the executor (and the node): log it instead."""
+
+        def run(*args: Any) -> None:
+            try:
+                callback(*args)
+            except Exception as err:
+                self.get_logger().error(f"{callback.__name__} failed: {type(err).__name__}: {err}",
+                                        throttle_duration_sec=5.0)
+
+        return run
 
     def _load_model(self, cfg: dict[str, Any]) -> None:
         stem = resolve_model(cfg["model_path"])
@@ -437,7 +476,8 @@ class BrtNode(Node):
         for p in params:
             if p.name in cfg:
                 cfg[p.name] = p.value
-        problem = validate_parameters(cfg)
+        # the start-up sentinel epsilon = -1 may stay while other parameters change, but cannot be set live
+        problem = validate_parameters(cfg, startup=all(p.name != "epsilon" for p in params))
         if problem is None:
             try:
                 self._filter_settings(cfg)
@@ -492,6 +532,9 @@ class BrtNode(Node):
         self._odom = sample
         if self._cfg["pose_topic"]:
             self._odom_history.append(sample)
+            fix = self._pose_fix
+            if fix is not None and fix.odom is None:  # pose came first: anchor dead reckoning here
+                self._pose_fix = dataclasses.replace(fix, odom=(sample.x, sample.y, sample.yaw))
 
     def _on_pose(self, msg: PoseWithCovarianceStamped) -> None:
         p, q = msg.pose.pose.position, msg.pose.pose.orientation
@@ -525,7 +568,7 @@ class BrtNode(Node):
             if map_frame is not None and fix.frame_id != map_frame:
                 return None, (f"pose frame '{fix.frame_id}' != map frame '{map_frame}' (no tf2 from PyPI: "
                               "the pose must be in the map frame)")
-            pose = fix.pose
+            pose = fix.pose  # ∘ the odometry motion since the pose's time
             if fix.odom is not None:
                 pose = _compose(fix.pose, _compose(_inverse(fix.odom), (odom.x, odom.y, odom.yaw)))
             frame = fix.frame_id
@@ -565,8 +608,8 @@ class BrtNode(Node):
             return f"state ({s[0]:.2f}, {s[1]:.2f}) outside the value window centred at {val.center}", state, val
         grid = val.table.grid
         if not grid.lo[2] - self._dv <= s[2] <= grid.hi[2] + self._dv:
-            return f"speed {s[2]:.2f} m/s outside the value table's stencil [{grid.lo[2]:.2f}, {grid.hi[2]:.2f}]", \
-                state, val
+            return (f"speed {s[2]:.2f} m/s outside the value table's stencil [{grid.lo[2]:.2f}, {grid.hi[2]:.2f}]",
+                    state, val)
         return "", state, val
 
     # ------------------------------------------------------------------ command path
@@ -588,6 +631,7 @@ class BrtNode(Node):
         return out
 
     def _on_cmd(self, msg: Twist | TwistStamped) -> None:
+        """Nominal command in, filtered command out; fast (no waiting on inference), never raises."""
         t = self._twist(msg)
         if not _finite(t.linear.x, t.linear.y, t.linear.z, t.angular.x, t.angular.y, t.angular.z):
             with self._lock:
@@ -602,6 +646,17 @@ class BrtNode(Node):
         if not self._enabled:
             self._cmd_pub.publish(msg)
             return
+        start = time.perf_counter()
+        try:
+            self._filter(msg, t, header, now)
+        except Exception as err:  # never let the command path die: fail closed
+            self.get_logger().error(f"filter failed ({type(err).__name__}: {err}); stopping",
+                                    throttle_duration_sec=5.0)
+            self._cmd_pub.publish(self._command(0.0, 0.0, "", header))
+            self._record(safety_filter.stop(math.nan, "filter failed"), now, stop=True)
+        self._cmd_times.append(time.perf_counter() - start)
+
+    def _filter(self, msg: Twist | TwistStamped, t: Twist, header: Any, now: float) -> None:
         reason, state, val = self._check(now)
         if reason:
             self._cmd_pub.publish(self._command(0.0, 0.0, "", header))
@@ -619,7 +674,9 @@ class BrtNode(Node):
         self._record(decision, now, stop=decision.reason.startswith("non-finite"))
 
     def _record(self, decision: safety_filter.Decision, now: float, stop: bool) -> None:
-        self._last_decision, self._last_decision_time = decision, now
+        """Count the decision; filter decisions (not fail-closed stops) drive the "intervening" state."""
+        if not stop:
+            self._last_decision, self._last_decision_time = decision, now
         with self._lock:
             if stop:
                 self._counts.stops += 1
@@ -644,8 +701,10 @@ class BrtNode(Node):
         self._enabled = bool(request.data)
         response.success = True
         response.message = "filter enabled" if self._enabled else "filter bypassed: nominal commands pass unchanged"
-        log = self.get_logger().info if self._enabled else self.get_logger().warning
-        log(response.message)
+        if self._enabled:
+            self.get_logger().info(response.message)
+        else:
+            self.get_logger().warning(response.message)
         return response
 
     # ------------------------------------------------------------------ inference (own thread)
@@ -712,8 +771,9 @@ class BrtNode(Node):
         with self._lock:
             self._map_version += 1
             version = self._map_version
-        self._map = dataclasses.replace(m, sd=sd, version=version, occupied_threshold=threshold,
-                                        unknown_is_obstacle=unknown)
+        if self._map is m:  # a newer map already used the new settings
+            self._map = dataclasses.replace(m, sd=sd, version=version, occupied_threshold=threshold,
+                                            unknown_is_obstacle=unknown)
 
     def _publish_value(self, values: np.ndarray, info: dict, m: MapData, state: RobotState) -> None:
         nx, ny = values.shape
@@ -753,15 +813,21 @@ class BrtNode(Node):
         else:
             mode, why = "ok", "pass"
         m, odom = self._map, self._odom
+        robot = None
+        if state is not None:
+            robot = {"x": round(state.x, 4), "y": round(state.y, 4), "v": round(state.v, 4),
+                     "theta": round(state.theta, 4), "frame_id": state.frame_id}
         with self._lock:
             counts = dataclasses.asdict(self._counts)
         return {
             "state": mode,
             "reason": why,
             "value": value,
+            "robot": robot,
             "epsilon": self._settings.epsilon,
             "filter_mode": self._settings.mode,
             "inference_latency_ms": round(val.latency_ms, 2) if val else None,
+            "filter_ms": self._filter_ms(),
             "value_age_s": round(now - val.computed, 3) if val else None,
             "odom_age_s": round(now - odom.received, 3) if odom else None,
             "map_age_s": round(now - m.received, 3) if m else None,
@@ -773,6 +839,14 @@ class BrtNode(Node):
             "model": str(self._model_stem),
         }
 
+    def _filter_ms(self) -> dict[str, float] | None:
+        """Time spent in the command callback (check, V and ∇V, filter, publish) over the last 200 commands."""
+        times = np.asarray(self._cmd_times) * 1e3
+        if not times.size:
+            return None
+        return {"p50": round(float(np.percentile(times, 50)), 3), "p95": round(float(np.percentile(times, 95)), 3),
+                "max": round(float(times.max()), 3)}
+
     def _publish_status(self) -> None:
         self._status_pub.publish(String(data=json.dumps(self.status())))
 
@@ -780,7 +854,7 @@ class BrtNode(Node):
         st = self.status()
         level = {"ok": DiagnosticStatus.OK, "intervening": DiagnosticStatus.OK, "bypassed": DiagnosticStatus.WARN,
                  "fail_closed": DiagnosticStatus.ERROR}[st["state"]]
-        flat = {k: v for k, v in st.items() if k not in ("dropped", "counts", "value_grid")}
+        flat = {k: v for k, v in st.items() if k not in ("dropped", "counts", "value_grid", "robot", "filter_ms")}
         flat.update({f"dropped_{k}": v for k, v in st["dropped"].items()})
         flat.update(st["counts"])
         status = DiagnosticStatus(level=level, name=f"{self.get_name()}: BRT safety filter", message=st["reason"],
@@ -803,6 +877,150 @@ class BrtNode(Node):
     def destroy_node(self) -> None:
         self._stop_worker()
         super().destroy_node()
+
+
+# ---------------------------------------------------------------------------------------------
+# Load generator for ``node_bench`` (kept here: this is the only module that imports rclpy).
+
+
+class BenchDriver(Node):
+    """Drives a running brt_node over DDS and records latencies (perf_counter, this process).
+
+    Publishes a static robot's odometry at ``odom_rate`` and TwistStamped commands at ``cmd_rate``
+    (each keyed by its stamp, which the node copies through); ``publish_map`` latches a map and
+    remembers when.  Latencies: command → filtered command (matched by stamp) and map → value grid
+    (matched by ``info.map_load_time`` = the map's stamp).
+    """
+
+    def __init__(self, context: Any, pose: tuple[float, float, float], speed: float, frame_id: str = "map",
+                 odom_rate: float = 50.0, cmd_rate: float = 20.0) -> None:
+        super().__init__("brt_bench_driver", context=context)
+        qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.pose, self.speed, self.frame_id = pose, speed, frame_id
+        self.map_pub = self.create_publisher(OccupancyGrid, "map", qos)
+        self.odom_pub = self.create_publisher(Odometry, "odom", 10)
+        self.cmd_pub = self.create_publisher(TwistStamped, "cmd_vel_smoothed", 10)
+        self.sent: dict[tuple[int, int], float] = {}
+        self.cmd_latency: list[float] = []  # s
+        self.map_sent: dict[tuple[int, int], float] = {}
+        self.map_latency: list[float] = []  # s
+        self.status: dict = {}
+        self.sending = False
+        self.create_subscription(TwistStamped, "cmd_vel", self._on_out, 50)
+        self.create_subscription(OccupancyGrid, "brt/value_grid", self._on_grid, qos)
+        self.create_subscription(String, "brt/status", lambda m: setattr(self, "status", json.loads(m.data)), 10)
+        self.create_timer(1.0 / odom_rate, self._odom)
+        self.create_timer(1.0 / cmd_rate, self._cmd)
+
+    def publish_map(self, occupancy: np.ndarray, resolution: float, origin: tuple[float, float], sec: int) -> None:
+        msg = OccupancyGrid()
+        msg.header.frame_id = self.frame_id
+        msg.header.stamp.sec = sec
+        msg.info.resolution = float(resolution)  # rclpy does not type-check fields: an int would be garbage
+        msg.info.width, msg.info.height = occupancy.shape
+        msg.info.origin.position.x, msg.info.origin.position.y = float(origin[0]), float(origin[1])
+        msg.info.origin.orientation.w = 1.0
+        msg.data = array.array("b", np.ascontiguousarray(occupancy.T, np.int8).tobytes())
+        self.map_sent[(sec, 0)] = time.perf_counter()
+        self.map_pub.publish(msg)
+
+    def _odom(self) -> None:
+        msg = Odometry()
+        msg.header.frame_id = self.frame_id
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.pose.pose.position.x, msg.pose.pose.position.y = float(self.pose[0]), float(self.pose[1])
+        q = msg.pose.pose.orientation
+        q.z, q.w = math.sin(self.pose[2] / 2), math.cos(self.pose[2] / 2)
+        msg.twist.twist.linear.x = float(self.speed)
+        self.odom_pub.publish(msg)
+
+    def _cmd(self) -> None:
+        if not self.sending:
+            return
+        msg = TwistStamped()
+        msg.header.frame_id = "base_link"
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.twist.linear.x, msg.twist.angular.z = float(self.speed), 0.1
+        self.sent[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = time.perf_counter()
+        self.cmd_pub.publish(msg)
+
+    def _on_out(self, msg: TwistStamped) -> None:
+        sent = self.sent.pop((msg.header.stamp.sec, msg.header.stamp.nanosec), None)
+        if sent is not None:
+            self.cmd_latency.append(time.perf_counter() - sent)
+
+    def _on_grid(self, msg: OccupancyGrid) -> None:
+        sent = self.map_sent.pop((msg.info.map_load_time.sec, msg.info.map_load_time.nanosec), None)
+        if sent is not None:
+            self.map_latency.append(time.perf_counter() - sent)
+
+
+def bench_drive(domain_id: int, maps: list[np.ndarray], resolution: float, origin: tuple[float, float],
+                pose: tuple[float, float, float], speed: float, seconds: float, bypass_seconds: float = 0.0,
+                map_period: float = 1.0, ready_timeout: float = 120.0, on_ready: Callable[[], None] | None = None,
+                on_done: Callable[[], None] | None = None, alive: Callable[[], bool] = lambda: True) -> dict:
+    """Run a BenchDriver against a brt_node on ``domain_id``.
+
+    Waits until the node filters (status ok), calls ``on_ready``, sends commands for ``seconds`` while
+    publishing the next of ``maps`` every ``map_period``, calls ``on_done``; then, if ``bypass_seconds``
+    > 0, bypasses the filter (``~/enable`` false) and sends commands for that long again: the same
+    process and DDS path without the filter, a baseline for the command latency.  Returns raw
+    latencies (s), counts and the node's last status.
+    """
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    driver = BenchDriver(context, pose, speed)
+    enable = driver.create_client(SetBool, f"/{NODE_NAME}/enable")
+    executor = MultiThreadedExecutor(num_threads=2, context=context)
+    executor.add_node(driver)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    try:
+        driver.publish_map(maps[0], resolution, origin, 1)
+        end = time.monotonic() + ready_timeout
+        while driver.status.get("state") != "ok":
+            if time.monotonic() > end or not alive():
+                raise RuntimeError(f"brt_node did not become ready: {driver.status.get('reason', 'no status')}")
+            time.sleep(0.05)
+        driver.map_latency.clear()  # the first map also waited for odometry and start-up
+        if on_ready is not None:
+            on_ready()
+        driver.sending = True
+        start = time.monotonic()
+        k = 1
+        while time.monotonic() - start + map_period <= seconds and alive():
+            time.sleep(map_period)
+            k += 1
+            driver.publish_map(maps[(k - 1) % len(maps)], resolution, origin, k)
+        time.sleep(max(0.0, seconds - (time.monotonic() - start)))
+        driver.sending = False
+        if on_done is not None:
+            on_done()
+        time.sleep(0.5)  # let the last outputs arrive
+        result = {"cmd_latency_s": list(driver.cmd_latency), "cmd_sent": len(driver.cmd_latency) + len(driver.sent),
+                  "map_latency_s": list(driver.map_latency), "maps_sent": k - 1, "status": dict(driver.status),
+                  "bypass_latency_s": [], "bypass_sent": 0}
+        if bypass_seconds > 0 and alive():
+            if not enable.wait_for_service(timeout_sec=5.0):
+                raise RuntimeError("brt_node's ~/enable service is not available")
+            future = enable.call_async(SetBool.Request(data=False))
+            end = time.monotonic() + 5.0
+            while not future.done() and time.monotonic() < end:
+                time.sleep(0.01)
+            driver.cmd_latency.clear()
+            driver.sent.clear()
+            driver.sending = True
+            time.sleep(bypass_seconds)
+            driver.sending = False
+            time.sleep(0.5)
+            result["bypass_latency_s"] = list(driver.cmd_latency)
+            result["bypass_sent"] = len(driver.cmd_latency) + len(driver.sent)
+        return result
+    finally:
+        executor.shutdown(timeout_sec=2.0)
+        driver.destroy_node()
+        rclpy.shutdown(context=context)
+        spinner.join(timeout=2.0)
 
 
 def main(argv: list[str] | None = None) -> int:

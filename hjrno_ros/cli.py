@@ -4,7 +4,7 @@
     hjrno generate --experiment NAME [--config FILE] [--out DIR] [--shard K/N] [--workers W]
     hjrno merge --out DIR [SHARD_DIR ...]
     hjrno show --dataset FILE
-    hjrno bench solver|dataset [--out benchmarks/results]
+    hjrno bench solver|dataset|node [--out benchmarks/results]
 """
 
 from __future__ import annotations
@@ -121,8 +121,12 @@ def cmd_show(args: argparse.Namespace) -> int:
 
 def cmd_train(args: argparse.Namespace) -> int:
     """Train an operator on an experiment's dataset; writes safetensors + model card."""
+    import torch
+
     from .training import TrainConfig, train
 
+    if args.threads:
+        torch.set_num_threads(args.threads)
     data = args.data or f"data/{args.experiment}"
     out = args.out or f"out/models/{Path(data).name}_{args.model}"
     try:
@@ -211,6 +215,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lr", type=float, default=3e-3)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--max-minutes", type=float, default=30.0, help="wall-time budget (checkpoint and stop)")
+    p.add_argument("--threads", type=int, default=0, help="torch CPU threads (default: torch's choice; 1 is "
+                   "faster when other jobs share the cores)")
     p.add_argument("--out", default=None, help="model stem (default: out/models/DATA_MODEL)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_train)
@@ -226,7 +232,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("bench", help="run a benchmark and write its results table")
-    p.add_argument("what", choices=["solver", "dataset"])
+    p.add_argument("what", choices=["solver", "dataset", "node"])
     p.add_argument("--out", default="benchmarks/results", help="results folder")
     p.add_argument("--quick", action="store_true", help="smallest case only (smoke run)")
     p.add_argument("--only", default=None, help="dataset bench: comma-separated families (others keep old rows)")

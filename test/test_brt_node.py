@@ -23,7 +23,8 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 
-from geometry_msgs.msg import Twist  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
+from geometry_msgs.msg import PoseWithCovarianceStamped, Twist, TwistStamped  # noqa: E402
 from nav_msgs.msg import OccupancyGrid, Odometry  # noqa: E402
 from rcl_interfaces.msg import Parameter as ParameterMsg  # noqa: E402
 from rcl_interfaces.msg import ParameterType, ParameterValue  # noqa: E402
@@ -39,7 +40,7 @@ from hjrno_ros import checkpoint, geometry  # noqa: E402
 from hjrno_ros.brt_node import BrtNode  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-DOMAIN = 1 + os.getpid() % 100
+DOMAIN = 1 + os.getpid() % 50  # Linux: ids <= 101 avoid the ephemeral port range
 RES, ORIGIN, SIZE = 0.1, (-10.0, -10.0), 200  # 20 m x 20 m map
 WALL = (slice(150, 154), slice(70, 130))  # x in [5.0, 5.4], y in [-3, 3]
 FAR = (-4.0, -4.0)  # > 9 m from every obstacle
@@ -93,10 +94,12 @@ class Driver(Node):
         self.status: dict = {}
         self.grid: OccupancyGrid | None = None
         self.values: Float32MultiArray | None = None
+        self.diagnostics: DiagnosticStatus | None = None
         self.create_subscription(Twist, "cmd_vel", lambda m: self.out.append((time.monotonic(), m)), 50)
         self.create_subscription(String, "brt/status", self._on_status, 10)
         self.create_subscription(OccupancyGrid, "brt/value_grid", lambda m: setattr(self, "grid", m), MAP_QOS)
         self.create_subscription(Float32MultiArray, "brt/value", lambda m: setattr(self, "values", m), 1)
+        self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
         self.params = self.create_client(SetParameters, "/brt_node/set_parameters")
         self.enable = self.create_client(SetBool, "/brt_node/enable")
         self.pose, self.v, self.frame, self.odom_on = (*FAR, 0.0), 0.5, "map", True
@@ -105,6 +108,11 @@ class Driver(Node):
 
     def _on_status(self, msg: String) -> None:
         self.status = json.loads(msg.data)
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name.startswith("brt_node:"):
+                self.diagnostics = status
 
     def _odom(self) -> None:
         if not self.odom_on:
@@ -210,8 +218,25 @@ def test_far_from_obstacles_command_passes_unchanged(ros):
     assert dims[1].size == grid.info.width and len(values.data) == dims[0].stride
 
 
-def ground_truth_control(node: BrtNode, state: np.ndarray) -> np.ndarray:
-    """Optimal control at ``state`` from a converged solve on a 24x24x7x12 grid of the same window."""
+def test_parameter_updates_are_validated(ros):
+    driver, node = ros
+    eps = driver.status["epsilon"]
+    assert node.get_parameter("epsilon").value == -1.0  # the start-up sentinel may stay while others change
+    assert driver.set_param("filter_mode", "blend") == (True, "")
+    assert wait_for(lambda: driver.status["filter_mode"] == "blend", 2.0)
+    assert driver.set_param("filter_mode", "switch")[0]
+    for name, value, words in (("epsilon", -1.0, "epsilon"), ("filter_mode", "magic", "filter_mode"),
+                               ("control_period", 0.0, "control_period")):
+        ok, reason = driver.set_param(name, value)
+        assert not ok and words in reason, (name, reason)
+    ok, _ = driver.set_param("epsilon", 0.2)
+    assert ok and wait_for(lambda: driver.status["epsilon"] == 0.2, 2.0)
+    assert node._settings.epsilon == 0.2
+    assert driver.set_param("epsilon", eps)[0]
+
+
+def ground_truth_control(node: BrtNode, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(u*, ∇V) at ``state`` from a converged solve on a 24x24x7x12 grid of the same window (~7 s)."""
     from hjrno_ros.dynamics import DynamicDubinsCar, car_optimal_control
     from hjrno_ros.grids import car_grid
     from hjrno_ros.solver import solve
@@ -225,11 +250,17 @@ def ground_truth_control(node: BrtNode, state: np.ndarray) -> np.ndarray:
     l0 = geometry.sample_raster(sd, ORIGIN, RES, grid.states()[:, :, 0, 0, :2], outside=-RES)
     target = np.broadcast_to(l0[:, :, None, None], grid.shape).astype(np.float32)
     values, _ = solve(DynamicDubinsCar(vf.params), grid, target, accuracy="medium", max_horizon=20.0)
-    grad = ValueTable(grid, values).gradient(state)
+    grad = ValueTable(grid, values).gradient(state)[0]
     return car_optimal_control(vf.params, state, grad), grad
 
 
 def test_driving_into_wall_is_overridden(ros):
+    """1 m/s, 0.6 m before a wall, heading 0.3 rad off its normal: the filter takes over.
+
+    Ground truth here (a converged solve): V ≈ 0, ∂V/∂θ > 0 (turn left, away from the wall, at full
+    curvature) and ∂V/∂v ≥ 0 (a stopped car drifts into the wall under the disturbance, so braking
+    is not what the true value function asks for; at v_max the feasible u1 is 0).
+    """
     driver, node = ros
     bundled = Path(node._model_stem) == ROOT / "models" / "default"
     theta, v = 0.3, 1.0
@@ -242,18 +273,18 @@ def test_driving_into_wall_is_overridden(ros):
         out = driver.command(1.0, 0.0)
         assert out is not None and (out.linear.x, out.angular.z) != (1.0, 0.0)
         assert wait_for(lambda: driver.status["state"] == "intervening", 2.0), driver.status
-        accel = (out.linear.x - v) / node._settings.dt
-        assert abs(abs(accel) - node._vf.params.a_max) < 1e-6 or out.linear.x in (0.0, 1.0)
-        assert abs(abs(out.angular.z) - v * node._vf.params.kappa_max) < 1e-6
+        p, dt = node._vf.params, node._settings.dt
+        assert min(abs(out.linear.x - np.clip(v + k * p.a_max * dt, p.v_min, p.v_max)) for k in (-1, 0, 1)) < 1e-9
+        assert abs(abs(out.angular.z) - v * p.kappa_max) < 1e-9  # bang-bang curvature, ω = v·u2
         grid = driver.grid  # inside the wall V <= V0 < 0: the palette says lethal
         cell = (int((5.2 - grid.info.origin.position.x) / grid.info.resolution),
                 int((0.0 - grid.info.origin.position.y) / grid.info.resolution))
         assert grid.data[cell[1] * grid.info.width + cell[0]] == 100
         if bundled:
             u, grad = ground_truth_control(node, np.array([*NEAR_WALL, v, theta]))
-            assert out.linear.x < v and u[0] < 0, (out, u)  # brake, like the ground truth
-            if abs(grad[3]) > 1e-3:
-                assert np.sign(out.angular.z) == np.sign(v * u[1]), (out, u, grad)
+            assert grad[3] > 1e-2 and out.angular.z > 0, (out, u, grad)  # turn away, like the ground truth
+            if abs(grad[2]) > 2e-2:  # the speed gradient is decisive: same feasible acceleration sign
+                assert np.sign(out.linear.x - v) == np.sign(u[0]), (out, u, grad)
     finally:
         assert driver.set_param("epsilon", eps)[0]
 
@@ -269,7 +300,7 @@ def test_stale_odometry_stops_within_one_control_period(ros):
     t_zero, zero = driver.out[0]
     assert zero.linear.x == 0.0 and zero.angular.z == 0.0
     control_period, odom_timeout = node._cfg["control_period"], node._cfg["odom_timeout"]
-    assert t_zero - t_last <= odom_timeout + control_period + 0.15, t_zero - t_last
+    assert t_zero - t_last <= odom_timeout + control_period + 0.25, t_zero - t_last  # margin: loaded 2-core CI
     assert "odometry is" in driver.status["reason"] or wait_for(lambda: "odometry" in driver.status["reason"], 1.0)
     time.sleep(node._cfg["stop_pub_timeout"] + 0.3 - (time.monotonic() - t_last))
     driver.out.clear()
@@ -278,12 +309,18 @@ def test_stale_odometry_stops_within_one_control_period(ros):
     settle(driver, *FAR, 0.5, 0.0)
 
 
-def test_nan_command_is_dropped_and_counted(ros):
+def test_nan_command_and_odometry_are_dropped_and_counted(ros):
     driver, _ = ros
     settle(driver, *FAR, 0.5, 0.0)
-    before = driver.status["dropped"]["cmd"]
+    before = driver.status["dropped"]
     assert driver.command(float("nan"), 0.0, wait=0.4) is None
-    assert wait_for(lambda: driver.status["dropped"]["cmd"] == before + 1, 2.0)
+    assert wait_for(lambda: driver.status["dropped"]["cmd"] == before["cmd"] + 1, 2.0)
+    odom = Odometry()
+    odom.header.frame_id = "map"
+    odom.pose.pose.position.x, odom.pose.pose.orientation.w = float("inf"), 1.0
+    driver.odom_pub.publish(odom)
+    assert wait_for(lambda: driver.status["dropped"]["odom"] == before["odom"] + 1, 2.0)
+    assert driver.status["state"] == "ok"  # the good odometry before and after it is still used
 
 
 def test_odometry_in_another_frame_fails_closed(ros):
@@ -295,6 +332,8 @@ def test_odometry_in_another_frame_fails_closed(ros):
         assert driver.status["state"] == "fail_closed" and "tf2" in driver.status["reason"]
         out = driver.command(0.5, 0.2)
         assert out is not None and out.linear.x == 0.0 and out.angular.z == 0.0
+        assert wait_for(lambda: driver.diagnostics is not None and driver.diagnostics.level == DiagnosticStatus.ERROR
+                        and "frame" in driver.diagnostics.message, 3.0), driver.diagnostics
     finally:
         driver.frame = "map"
 
@@ -314,19 +353,6 @@ def test_bad_maps_are_rejected_and_previous_map_kept(ros):
     out = driver.command(0.4, 0.1)
     assert out is not None and out.linear.x == 0.4 and out.angular.z == 0.1
     driver.map_pub.publish(map_msg(occ))  # leave the good map latched
-
-
-def test_parameter_updates_are_validated(ros):
-    driver, node = ros
-    eps = driver.status["epsilon"]
-    for name, value, words in (("epsilon", -1.0, "epsilon"), ("filter_mode", "magic", "filter_mode"),
-                               ("control_period", 0.0, "control_period")):
-        ok, reason = driver.set_param(name, value)
-        assert not ok and words in reason, (name, reason)
-    ok, _ = driver.set_param("epsilon", 0.2)
-    assert ok and wait_for(lambda: driver.status["epsilon"] == 0.2, 2.0)
-    assert node._settings.epsilon == 0.2
-    assert driver.set_param("epsilon", eps)[0]
 
 
 def test_bypass_passes_commands_and_reenable_filters(ros):
@@ -350,6 +376,60 @@ def test_bypass_passes_commands_and_reenable_filters(ros):
         driver.set_param("epsilon", eps)
 
 
+def test_pose_topic_and_stamped_commands(ros, model_stem):
+    """pose_topic set: map-frame pose ∘ (odometry motion since the pose's stamp), odometry in its own frame;
+    enable_stamped_cmd_vel: TwistStamped in and out, header copied through."""
+    driver, _ = ros
+    overrides = {"model_path": str(model_stem), "pose_topic": "amcl_pose", "cmd_vel_in_topic": "pose_in",
+                 "cmd_vel_out_topic": "pose_out", "status_topic": "brt_pose/status",
+                 "value_grid_topic": "brt_pose/value_grid", "value_topic": "brt_pose/value",
+                 "enable_stamped_cmd_vel": True}
+    node = BrtNode(context=driver.context, cli_args=["--ros-args", "-r", "__node:=brt_pose_node"],
+                   parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()])
+    status: dict = {}
+    driver.create_subscription(String, "brt_pose/status", lambda m: status.update(json.loads(m.data)), 10)
+    pose_pub = driver.create_publisher(PoseWithCovarianceStamped, "amcl_pose", MAP_QOS)
+    cmd_pub = driver.create_publisher(TwistStamped, "pose_in", 10)
+    outputs: list[TwistStamped] = []
+    driver.create_subscription(TwistStamped, "pose_out", outputs.append, 10)
+    driver.executor.add_node(node)
+    try:
+        driver.pose, driver.v, driver.frame = (0.0, 0.0, 0.0), 0.5, "odom"
+        assert wait_for(lambda: "no pose" in status.get("reason", ""), 10.0), status
+        time.sleep(0.2)
+
+        def publish_pose(frame: str) -> None:
+            msg = PoseWithCovarianceStamped()
+            msg.header.frame_id, msg.header.stamp = frame, driver.get_clock().now().to_msg()
+            msg.pose.pose.position.x, msg.pose.pose.position.y = -4.0, -4.0
+            msg.pose.pose.orientation.z = msg.pose.pose.orientation.w = math.sqrt(0.5)  # yaw π/2
+            pose_pub.publish(msg)
+
+        publish_pose("map")
+        time.sleep(0.2)
+        driver.pose = (1.0, 0.0, 0.0)  # 1 m forward in odom = +y in the map
+
+        def at_expected() -> bool:
+            robot = status.get("robot") or {}
+            return (status.get("state") == "ok" and abs(robot.get("x", 9) + 4.0) < 1e-3
+                    and abs(robot.get("y", 9) + 3.0) < 1e-3 and abs(robot.get("theta", 9) - math.pi / 2) < 1e-3)
+
+        assert wait_for(at_expected, 5.0), status
+        cmd = TwistStamped()
+        cmd.header.frame_id, cmd.header.stamp = "base_link", driver.get_clock().now().to_msg()
+        cmd.twist.linear.x, cmd.twist.angular.z = 0.3, 0.2
+        cmd_pub.publish(cmd)
+        assert wait_for(lambda: outputs, 2.0)
+        assert outputs[0].header == cmd.header and outputs[0].twist == cmd.twist
+        publish_pose("odom")
+        assert wait_for(lambda: "pose frame 'odom'" in status.get("reason", ""), 3.0), status
+    finally:
+        driver.executor.remove_node(node)
+        time.sleep(0.2)  # let callbacks in flight finish before the handles go
+        node.destroy_node()
+        driver.frame, driver.pose = "map", (*FAR, 0.0)
+
+
 def test_missing_model_exits_nonzero_with_one_line():
     env = {**os.environ, "ROS_DOMAIN_ID": str(DOMAIN)}
     proc = subprocess.run([sys.executable, "-m", "hjrno_ros.brt_node", "--ros-args", "-p",
@@ -357,3 +437,13 @@ def test_missing_model_exits_nonzero_with_one_line():
     lines = [line for line in (proc.stdout + proc.stderr).splitlines() if line.strip()]
     assert proc.returncode == 1
     assert len(lines) == 1 and "/nonexistent" in lines[0] and "Traceback" not in lines[0], lines
+
+
+def test_config_yaml_lists_every_parameter_with_its_default():
+    import yaml
+
+    from hjrno_ros.brt_node import PARAMETERS
+
+    params = yaml.safe_load((ROOT / "config" / "brt_node.yaml").read_text())["brt_node"]["ros__parameters"]
+    assert params == {name: default for name, (default, _, _) in PARAMETERS.items()}
+    assert all(type(params[name]) is type(default) for name, (default, _, _) in PARAMETERS.items())
