@@ -122,7 +122,7 @@ PARAMETERS: dict[str, tuple[Any, str, dict]] = {
     "value_topic": ("brt/value", "V slice in metres, Float32MultiArray (row-major, x fastest)", _RO),
     "status_topic": ("brt/status", "JSON status (std_msgs/String, 10 Hz)", _RO),
     "model_path": ("", "model stem or .json/.safetensors path; '' = the bundled models/default", _RO),
-    "device": ("cpu", "torch device for inference: cpu, cuda, cuda:N", _RO),
+    "device": ("", "torch device for inference: '' = cuda when available else cpu, or cpu, cuda, cuda:N", _RO),
     "inference_threads": (1, "torch CPU threads for inference (keeps cores free for the command path)",
                           {"read_only": True, "integer_range": [IntegerRange(from_value=1, to_value=64, step=1)]}),
     "epsilon": (-1.0, "m: intervene when V <= epsilon; -1 (startup only) = the model card's value, else 0.1", {}),
@@ -446,7 +446,8 @@ class BrtNode(Node):
                                        f"({stem}): the model only knows its own limits; use -1 or retrain")
             from .value_function import LearnedValueFunction  # torch import: seconds, after the cheap checks
 
-            self._vf = LearnedValueFunction(stem, device=cfg["device"], threads=int(cfg["inference_threads"]))
+            self._vf = LearnedValueFunction(stem, device=cfg["device"] or None,
+                                            threads=int(cfg["inference_threads"]))
         except (ValueError, KeyError, TypeError, OSError) as err:
             raise StartupError(f"cannot load model {stem}: {err}") from None
         self._card = card

@@ -161,7 +161,9 @@ def error_figure(model, card: dict, test, path: str | Path) -> Path:
     fig, axes = plt.subplots(1, 3, figsize=(11, 3.4))
     for ax, data_, title in zip(axes, (test.value[0][idx], pred[idx], pred[idx] - test.value[0][idx]),
                                 ("ground truth V∞", f"{card['kind'].upper()} prediction", "error"), strict=True):
-        im = ax.pcolormesh(x, y, data_.T, shading="auto", cmap="RdBu" if title == "error" else "viridis")
+        limit = float(np.abs(data_).max()) if title == "error" else None
+        im = ax.pcolormesh(x, y, data_.T, shading="auto", cmap="RdBu" if limit else "viridis",
+                           vmin=-limit if limit else None, vmax=limit)
         if title != "error":
             ax.contour(x, y, data_.T, levels=[0.0], colors="w")
         ax.set_title(title, fontsize=10)
