@@ -62,8 +62,11 @@ def test_colcon_build_installs_a_runnable_brt_node(tmp_path):
                  share / "package.xml", share / "config" / "brt_node.yaml"):
         assert path.is_file(), path
     assert os.access(exe, os.X_OK)
-    for model_file in [*ROOT.glob("models/*.json"), *ROOT.glob("models/*.safetensors")]:
+    bundled = [f for f in [*ROOT.glob("models/*.json"), *ROOT.glob("models/*.safetensors")] if ".train." not in f.name]
+    assert bundled, "models/ should ship the default model"
+    for model_file in bundled:
         assert (share / "models" / model_file.name).is_file(), model_file
+    assert not list((share / "models").glob("*.train.*"))  # training state is not installed
     site = prefix / "lib" / PY / "site-packages"
     assert (site / "hjrno_ros" / "brt_node.py").is_file()
 
