@@ -9,13 +9,13 @@ atomically; loading refuses anything that is not such a pair, with a one-line re
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 
 import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
+
+from .atomic import atomic_write
 
 CARD_FORMAT = "hjrno-model-1"
 REQUIRED = ("format", "kind", "config", "inputs", "grid", "dynamics")
@@ -29,19 +29,6 @@ def paths(stem: str | Path) -> tuple[Path, Path]:
     return stem.with_name(stem.name + ".safetensors"), stem.with_name(stem.name + ".json")
 
 
-def _atomic_write(path: Path, write) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def save(stem: str | Path, tensors: dict[str, torch.Tensor], card: dict) -> tuple[Path, Path]:
     """Write weights (any flat dict of tensors) and the card; returns their paths."""
     weights, card_path = paths(stem)
@@ -51,8 +38,8 @@ def save(stem: str | Path, tensors: dict[str, torch.Tensor], card: dict) -> tupl
         raise ValueError(f"model card lacks {missing}")
     text = json.dumps(card, indent=1, sort_keys=False)
     flat = {k: v.detach().contiguous().cpu() for k, v in tensors.items()}
-    _atomic_write(weights, lambda tmp: save_file(flat, tmp, metadata={"format": CARD_FORMAT}))
-    _atomic_write(card_path, lambda tmp: Path(tmp).write_text(text))
+    atomic_write(weights, lambda tmp: save_file(flat, tmp, metadata={"format": CARD_FORMAT}))
+    atomic_write(card_path, lambda tmp: Path(tmp).write_text(text))
     return weights, card_path
 
 

@@ -148,10 +148,7 @@ def record(row: dict, out: str | Path) -> Path:
 
 def error_figure(model, card: dict, test, path: str | Path) -> Path:
     """Ground truth | prediction | error for the first test sample at mid speed, θ = 0."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from .plotting import plt, save_figure
 
     spec = InputSpec.from_dict(card["inputs"])
     pred = predict_table(model, spec, test.grid, test.target[0], sample_params(spec, test.scenarios[0]))
@@ -169,13 +166,7 @@ def error_figure(model, card: dict, test, path: str | Path) -> Path:
         ax.set_title(title, fontsize=10)
         ax.set_aspect("equal")
         fig.colorbar(im, ax=ax, shrink=0.8)
-    fig.suptitle(f"{test.config.name}: test sample 0, mid v, θ = 0", fontsize=10)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, f"{test.config.name}: test sample 0, mid v, θ = 0")
 
 
 def superresolution(stems: list[str | Path], data: str | Path, factor: int = 3, samples: int = 3,

@@ -1,44 +1,29 @@
-"""HDF5 files written atomically and read with validation.
-
-A file is written to a temporary sibling, flushed to disk and renamed over the target, so a
-crash never leaves a half-written file under the real name.  Metadata is JSON in attributes.
-"""
+"""HDF5 files written atomically (see ``atomic``) and read with validation; metadata is JSON."""
 
 from __future__ import annotations
 
 import json
 import os
-import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
 import h5py
 import numpy as np
 
+from .atomic import atomic_write
 from .grids import GridSpec
 
 SOLUTION_FORMAT = "hjrno-solution-1"
 
 
 def atomic_h5(path: str | os.PathLike, write: Callable[[h5py.File], None]) -> Path:
-    """Call ``write(f)`` on a temporary HDF5 file, then move it to ``path`` in one rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file the usual permissions
-    try:
+    """Call ``write(f)`` on a new HDF5 file that appears at ``path`` in one rename."""
+
+    def create(tmp: str) -> None:
         with h5py.File(tmp, "w") as f:
             write(f)
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+
+    return atomic_write(path, create)
 
 
 def write_solution(path, grid: GridSpec, target: np.ndarray, value: np.ndarray, meta: dict) -> Path:

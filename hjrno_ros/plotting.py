@@ -12,6 +12,8 @@ import numpy as np  # noqa: E402
 
 from .grids import GridSpec  # noqa: E402
 
+LEGEND = "(grey: obstacle l≤0, red: BRT V∞≤0)"
+
 
 def _slice_indices(n: int, count: int) -> list[int]:
     return sorted(set(np.linspace(0, n - 1, count).round().astype(int).tolist()))
@@ -37,8 +39,9 @@ def _panel(ax, grid: GridSpec, target: np.ndarray, value: np.ndarray, i: int, j:
     ax.tick_params(labelsize=7)
 
 
-def _save(fig, path: str | Path, title: str) -> Path:
-    fig.suptitle(f"{title}  (grey: obstacle l≤0, red: BRT V∞≤0)", fontsize=10)
+def save_figure(fig, path: str | Path, title: str) -> Path:
+    """Title, tighten, write the PNG (folders made as needed) and free the figure."""
+    fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -64,7 +67,7 @@ def brt_slices(path: str | Path, grid: GridSpec, target: np.ndarray, value: np.n
     for r, i in enumerate(rows):
         for c, j in enumerate(cols):
             _panel(axes[r][c], grid, target, value, i, j)
-    return _save(fig, path, title)
+    return save_figure(fig, path, f"{title}  {LEGEND}")
 
 
 def dataset_samples(path: str | Path, split, count: int = 4) -> Path:
@@ -76,4 +79,4 @@ def dataset_samples(path: str | Path, split, count: int = 4) -> Path:
         for c, (i, j) in enumerate(cols):
             _panel(axes[r][c], split.grid, split.target[r], split.value[r], i, j)
         axes[r][0].set_ylabel(f"seed {split.scenarios[r].seed}", fontsize=9)
-    return _save(fig, path, f"{split.config.name} ({split.attrs['split']})")
+    return save_figure(fig, path, f"{split.config.name} ({split.attrs['split']})  {LEGEND}")
