@@ -1,7 +1,7 @@
 """brt_node over real DDS: a driver node publishes map/odom/commands and watches the outputs.
 
 Both nodes share one rclpy context on a private ROS domain (from the pid) and one
-MultiThreadedExecutor on a background thread.  The model is the bundled ``models/default`` if
+SingleThreadedExecutor on a background thread.  The model is the bundled ``models/default`` if
 present, else a tiny FNO trained here on the ``ci`` dataset (~20 s): with that one V is only
 checked through what holds for any model (V ≤ V0, the filter's mapping), and the braking /
 turning comparison with a ground-truth solve runs with the bundled model only.
@@ -29,7 +29,7 @@ from nav_msgs.msg import OccupancyGrid, Odometry  # noqa: E402
 from rcl_interfaces.msg import Parameter as ParameterMsg  # noqa: E402
 from rcl_interfaces.msg import ParameterType, ParameterValue  # noqa: E402
 from rcl_interfaces.srv import SetParameters  # noqa: E402
-from rclpy.executors import MultiThreadedExecutor  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
@@ -167,7 +167,7 @@ def ros(model_stem):
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=DOMAIN)
     driver = Driver(context)
-    executor = MultiThreadedExecutor(num_threads=4, context=context)
+    executor = SingleThreadedExecutor(context=context)  # like main(): inference has its own thread
     executor.add_node(driver)
     spinner = threading.Thread(target=executor.spin, daemon=True)
     spinner.start()
@@ -300,7 +300,7 @@ def test_stale_odometry_stops_within_one_control_period(ros):
     t_zero, zero = driver.out[0]
     assert zero.linear.x == 0.0 and zero.angular.z == 0.0
     control_period, odom_timeout = node._cfg["control_period"], node._cfg["odom_timeout"]
-    assert t_zero - t_last <= odom_timeout + control_period + 0.25, t_zero - t_last  # margin: loaded 2-core CI
+    assert t_zero - t_last <= odom_timeout + control_period + 0.5, t_zero - t_last  # margin: loaded 2-core CI
     assert "odometry is" in driver.status["reason"] or wait_for(lambda: "odometry" in driver.status["reason"], 1.0)
     time.sleep(node._cfg["stop_pub_timeout"] + 0.3 - (time.monotonic() - t_last))
     driver.out.clear()
