@@ -84,8 +84,9 @@ class NeuralOperator(nn.Module):
         self.in_channels: int = config["in_channels"]
         self.prior: str = config["prior"]
 
-    def forward_raw(self, z: Tensor) -> Tensor:  # pragma: no cover - abstract
-        raise NotImplementedError
+    def forward_raw(self, z: Tensor) -> Tensor:  # pragma: no cover - every model overrides it
+        """The model's unconstrained output for ``z`` = input with coordinate channels."""
+        raise TypeError(f"{type(self).__name__} must define forward_raw")
 
     def forward(self, x: Tensor) -> Tensor:
         """[B, in_channels, Nx, Ny] -> [B, 1, Nx, Ny]."""
