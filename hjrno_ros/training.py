@@ -86,6 +86,9 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
     folders = [Path(d) for d in cfg.data.split(",") if d]
     train_splits = [load_split(d / "train.h5", converged_only=True) for d in folders]
     test_splits = [load_split(d / "test.h5", converged_only=True) for d in folders]
+    for split in train_splits + test_splits:
+        if not split.scenarios:
+            raise ValueError(f"{split.config.name} {split.attrs['split']}: no converged samples to train or test on")
     spec = spec_for(train_splits[0])
     if any(spec_for(s) != spec for s in train_splits):
         raise ValueError("datasets to combine need the same inputs (car vs Air3D, parameters, window)")
