@@ -17,7 +17,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import math
 import sys
 import time
 from collections.abc import Callable
@@ -396,6 +395,3 @@ def load_split(path: str | Path, converged_only: bool = False,
                  [Scenario.from_dict(s) for s, k in zip(scen, keep, strict=True) if k],
                  [r for r, k in zip(reports, keep, strict=True) if k], attrs)
 
-
-def data_size_mb(path: str | Path) -> float:
-    return Path(path).stat().st_size / 1e6 if Path(path).exists() else math.nan
