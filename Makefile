@@ -15,7 +15,7 @@ $(STAMP): requirements.txt constraints.txt setup.py setup.cfg package.xml
 	touch $(STAMP)
 
 demo: setup
-	$(VENV)/bin/hjrno solve --scenario disk --out out/demo
+	$(VENV)/bin/hjrno demo --out out/demo
 
 test: setup
 	$(PY) -m pytest -q test

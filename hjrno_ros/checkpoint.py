@@ -36,11 +36,15 @@ def save(stem: str | Path, tensors: dict[str, torch.Tensor], card: dict) -> tupl
     missing = [k for k in REQUIRED if k not in card]
     if missing:
         raise ValueError(f"model card lacks {missing}")
-    text = json.dumps(card, indent=1, sort_keys=False)
     flat = {k: v.detach().contiguous().cpu() for k, v in tensors.items()}
     atomic_write(weights, lambda tmp: save_file(flat, tmp, metadata={"format": CARD_FORMAT}))
-    atomic_write(card_path, lambda tmp: Path(tmp).write_text(text))
-    return weights, card_path
+    return weights, _write_card(card_path, card)
+
+
+def _write_card(path: Path, card: dict) -> Path:
+    text = json.dumps(card, indent=1, sort_keys=False)
+    atomic_write(path, lambda tmp: Path(tmp).write_text(text))
+    return path
 
 
 def load_card(stem: str | Path) -> dict:
@@ -58,6 +62,11 @@ def load_card(stem: str | Path) -> dict:
     if missing:
         raise ValueError(f"model card {card_path} lacks {missing}")
     return card
+
+
+def update_card(stem: str | Path, changes: dict) -> Path:
+    """Merge ``changes`` into an existing model card (atomically; the weights are untouched)."""
+    return _write_card(paths(stem)[1], {**load_card(stem), **changes})
 
 
 def load_tensors(stem: str | Path) -> dict[str, torch.Tensor]:

@@ -4,6 +4,7 @@
     hjrno generate --experiment NAME [--config FILE] [--out DIR] [--shard K/N] [--workers W]
     hjrno merge --out DIR [SHARD_DIR ...]
     hjrno show --dataset FILE
+    hjrno train | evaluate | calibrate | simulate | demo   (see --help of each)
     hjrno bench solver|dataset|node [--out benchmarks/results]
 """
 
@@ -157,6 +158,69 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _models(items: list[str] | None) -> dict[str, str]:
+    """LABEL=STEM pairs (a bare STEM is labelled by its file name); default: the bundled model."""
+    items = items or ["fno=models/default"]
+    pairs = [i.split("=", 1) if "=" in i else [Path(i).name, i] for i in items]
+    return {label: stem for label, stem in pairs}
+
+
+def _data_folders(data: str | None, stem: str) -> list[str]:
+    from . import checkpoint
+
+    return data.split(",") if data else list(checkpoint.load_card(stem)["dataset"]["folders"])
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    """Split-conformal ε for a model, written into its card (the node's default margin)."""
+    from .calibration import calibrate_model
+
+    folders = _data_folders(args.data, args.model)
+    entry = calibrate_model(args.model, folders, args.alpha, args.beta, args.draws, args.seed, args.margin,
+                            write=not args.dry_run)
+    before, after = entry["fresh_before"], entry["fresh_after"]
+    print(f"epsilon = {entry['epsilon']:.4f} m (margin {entry['margin']:g} m, alpha {args.alpha}, beta {args.beta}, "
+          f"n {entry['n']}, rank {entry['rank']}, {entry['scenarios']} calibration scenarios from "
+          f"{', '.join(folders)})")
+    print(f"P(V_gt<=0 | V_pred>eps) upper bound {entry['precision_bound']:.2e} (estimate "
+          f"{entry['precision_estimate']:.2e})")
+    for name, r in (("before (eps=0)", before), ("after", after)):
+        print(f"fresh split {name}: miss rate {r['miss_rate']:.4f}, false-safe rate {r['false_safe_rate']:.2e}, "
+              f"conservative rate {r['conservative_rate']:.4f}")
+    print("dry run: card unchanged" if args.dry_run else f"wrote epsilon into {args.model}.json")
+    return 0
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    """Closed-loop comparison of safety filters; writes closed_loop.{md,csv,json,png}."""
+    import torch
+
+    from . import filter_study, plotting
+    from .closed_loop import EpisodeSettings
+
+    torch.set_num_threads(args.threads)
+    models = _models(args.model)
+    folders = _data_folders(args.data, next(iter(models.values())))
+    study = filter_study.run_study(folders, models, args.episodes, args.seed, args.truth_epsilon, args.part,
+                                   EpisodeSettings(duration=args.duration),
+                                   filters=args.filters.split(",") if args.filters else None,
+                                   progress=(lambda m: None) if args.quiet else print)
+    out = Path(args.out)
+    command = "hjrno " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("hjrno") else "hjrno simulate ..."
+    md, _, _ = filter_study.write_tables(study, out, command)
+    plotting.closed_loop_figure(out / "closed_loop.png", study["first_world"], study["traces"], study["rows"])
+    print(md.read_text())
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """Live demo: brt_node + a simulated robot over ROS 2; exit 1 if the robot collided."""
+    from . import demo
+
+    return demo.run(Path(args.out), args.seconds, args.seed, args.model, use_filter=not args.no_filter,
+                    gif=not args.no_gif)
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from . import benchmarks
 
@@ -230,6 +294,46 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--superres", type=int, default=0, help="zero-shot super-resolution test at this factor")
     p.add_argument("--samples", type=int, default=3, help="test samples solved at the fine grid (--superres)")
     p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("calibrate", help="split-conformal safety margin epsilon, written into the model card")
+    p.add_argument("--model", default="models/default", help="model stem (default: models/default)")
+    p.add_argument("--data", default=None, help="dataset folders, comma-separated (default: the card's); the "
+                   "first half of each test split calibrates, the second half tests")
+    p.add_argument("--margin", type=float, default=0.1, help="delta, m: the margin the ground-truth filter needs "
+                   "in closed loop (see hjrno simulate); calibration covers {V_gt <= delta} (default 0.1)")
+    p.add_argument("--alpha", type=float, default=0.002, help="allowed miss rate P(V_pred > eps | V_gt <= delta) "
+                   "(default 0.002)")
+    p.add_argument("--beta", type=float, default=0.05, help="1 - confidence")
+    p.add_argument("--draws", type=int, default=20000, help="calibration draws")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--dry-run", action="store_true", help="report only; leave the card as it is")
+    p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("simulate", help="closed-loop episodes: collisions and interventions per safety filter")
+    p.add_argument("--model", action="append", help="LABEL=STEM of a learned filter, repeatable "
+                   "(default: fno=models/default)")
+    p.add_argument("--data", default=None, help="dataset folders, comma-separated (default: the first model "
+                   "card's); worlds are the second halves of their test splits")
+    p.add_argument("--part", default="fresh", choices=["fresh", "calibration", "all"])
+    p.add_argument("--episodes", type=int, default=500, help="at least this many episodes per filter")
+    p.add_argument("--duration", type=float, default=20.0, help="episode length, s")
+    p.add_argument("--truth-epsilon", type=float, default=0.1, help="delta: margin of the ground-truth filter "
+                   "(sampled-data and grid error), m (default 0.1)")
+    p.add_argument("--filters", default=None, help="only filters whose names start with these, comma-separated")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    p.add_argument("--out", default="benchmarks/results", help="results folder")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("demo", help="brt_node keeps a careless simulated robot safe, live over ROS 2")
+    p.add_argument("--seconds", type=float, default=40.0, help="driving time (default 40)")
+    p.add_argument("--seed", type=int, default=0, help="arena and disturbance seed")
+    p.add_argument("--model", default=None, help="model stem for brt_node (default: the bundled model)")
+    p.add_argument("--no-filter", action="store_true", help="drive without brt_node (to see the difference)")
+    p.add_argument("--no-gif", action="store_true", help="only the PNG")
+    p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
+    p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("bench", help="run a benchmark and write its results table")
     p.add_argument("what", choices=["solver", "dataset", "node"])

@@ -96,6 +96,9 @@ def _evaluate_folder(model, card: dict, stem: Path, data: Path, train_limit: int
     train, test = load_split(data / "train.h5", converged_only=True), load_split(data / "test.h5", converged_only=True)
     if figures:
         error_figure(model, card, test, Path(figures) / f"{test.config.name}_{checkpoint.paths(stem)[0].stem}.png")
+        if test.config.family == "parametric":
+            diagonal_figure(model, card, test,
+                            Path(figures) / f"{test.config.name}_{checkpoint.paths(stem)[0].stem}_diagonal.png")
     tr, te = split_metrics(model, spec, train, train_limit), split_metrics(model, spec, test)
     solve_s = float(np.mean([r["wall_time"] for r in train.reports + test.reports]))
     infer = inference_ms(model, spec, tuple(test.grid.shape[:2]))
@@ -167,6 +170,36 @@ def error_figure(model, card: dict, test, path: str | Path) -> Path:
         ax.set_aspect("equal")
         fig.colorbar(im, ax=ax, shrink=0.8)
     return save_figure(fig, path, f"{test.config.name}: test sample 0, mid v, θ = 0")
+
+
+def diagonal_figure(model, card: dict, test, path: str | Path) -> Path:
+    """The paper's Fig. 4: test error along the (a_max, κ_max) diagonal (trained on a lattice), and the
+    ground-truth vs predicted zero level at the lowest, middle and highest limits (v_max, θ = 0)."""
+    from .plotting import plt, save_figure
+
+    spec = InputSpec.from_dict(card["inputs"])
+    limits = np.array([[sc.params["a_max"], sc.params["kappa_max"]] for sc in test.scenarios])
+    order = np.argsort(limits[:, 0])
+    preds = [predict_table(model, spec, test.grid, test.target[i], sample_params(spec, test.scenarios[i]))
+             for i in order]
+    errors = [table_metrics(p_, test.value[i])["rel_l2"] for p_, i in zip(preds, order, strict=True)]
+    picks = [0, len(order) // 2, len(order) - 1]
+    fig, axes = plt.subplots(1, 4, figsize=(14, 3.4))
+    axes[0].plot(limits[order, 0], errors, "o-", ms=3)
+    axes[0].set_xlabel("a_max = κ_max along the diagonal")
+    axes[0].set_ylabel("test relative L2")
+    axes[0].set_title("error along the diagonal", fontsize=10)
+    x, y = test.grid.axis(0), test.grid.axis(1)
+    idx = (slice(None), slice(None), test.grid.shape[2] - 1, test.grid.shape[3] // 2)
+    for ax, k in zip(axes[1:], picks, strict=True):
+        i = order[k]
+        ax.contourf(x, y, test.target[i][idx].T, levels=[-10, 0], colors=["#404040"])
+        ax.contour(x, y, test.value[i][idx].T, levels=[0], colors=["k"])
+        ax.contour(x, y, preds[k][idx].T, levels=[0], colors=["r"], linestyles="--")
+        ax.set_title(f"a_max {limits[i, 0]:.2f}, κ_max {limits[i, 1]:.2f}: rel L2 {errors[k]:.4f}", fontsize=9)
+        ax.set_aspect("equal")
+    return save_figure(fig, path, f"{test.config.name}: BRT at v_max, θ = 0 (black: ground truth, red: "
+                       f"{card['kind'].upper()})")
 
 
 def superresolution(stems: list[str | Path], data: str | Path, factor: int = 3, samples: int = 3,

@@ -24,14 +24,12 @@ from __future__ import annotations
 import json
 import os
 import platform
-import signal
-import subprocess
-import sys
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+from .node_process import brt_node_process, free_domain
 
 RESOLUTION = 0.05  # m
 SIZE = 400  # cells per side: 20 m
@@ -82,13 +80,8 @@ def run(out: Path, seconds: float = 30.0, model: Path | None = None) -> int:
         raise ValueError(f"seconds must be > 0, got {seconds}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    domain = 1 + os.getpid() % 101  # Linux: ids <= 101 keep DDS ports out of the ephemeral range
-    cmd = [sys.executable, "-m", "hjrno_ros.brt_node", "--ros-args", "-p", "enable_stamped_cmd_vel:=true"]
-    if model is not None:
-        cmd += ["-p", f"model_path:={model}"]
-    env = {**os.environ, "ROS_DOMAIN_ID": str(domain)}
-    with tempfile.TemporaryFile("w+") as log:
-        proc = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT, text=True)
+    domain = free_domain()
+    with brt_node_process(domain, {"enable_stamped_cmd_vel": True}, model) as (proc, log_tail):
         marks: dict[str, float] = {}
 
         def on_ready() -> None:
@@ -104,17 +97,7 @@ def run(out: Path, seconds: float = 30.0, model: Path | None = None) -> int:
             cpu_share = (marks["cpu1"] - marks["cpu0"]) / (marks["wall1"] - marks["wall0"])
             peak = _peak_rss_mb(proc.pid)
         except RuntimeError as err:
-            log.seek(0)
-            tail = " | ".join(log.read().strip().splitlines()[-3:])
-            raise RuntimeError(f"node benchmark failed: {err} (node log: {tail})") from None
-        finally:
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
-                try:
-                    proc.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-                    proc.wait()
+            raise RuntimeError(f"node benchmark failed: {err} (node log: {log_tail()})") from None
     cmd_lat, map_lat, status = raw["cmd_latency_s"], raw["map_latency_s"], raw["status"]
     bypass = raw["bypass_latency_s"]
     row = {

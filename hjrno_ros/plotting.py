@@ -80,3 +80,97 @@ def dataset_samples(path: str | Path, split, count: int = 4) -> Path:
             _panel(axes[r][c], split.grid, split.target[r], split.value[r], i, j)
         axes[r][0].set_ylabel(f"seed {split.scenarios[r].seed}", fontsize=9)
     return save_figure(fig, path, f"{split.config.name} ({split.attrs['split']})  {LEGEND}")
+
+
+OUTCOME_COLORS = {"collision": "#d00000", "goal": "#2a9d2a", "exited": "#1f5fbf", "timeout": "#9a6fb0"}
+
+
+def closed_loop_figure(path: str | Path, solved, traces: dict, rows: list[dict]) -> Path:
+    """One panel per filter: the first world's obstacles and its episodes' paths coloured by outcome
+    (red collision, green goal, blue left the window, purple time out); last panel: collisions and
+    intervention rates of all filters."""
+    names = list(traces)
+    cols = 4
+    n_rows = -(-(len(names) + 1) // cols)
+    fig, axes = plt.subplots(n_rows, cols, figsize=(3.3 * cols, 3.3 * n_rows), squeeze=False)
+    grid = solved.grid
+    x, y = grid.axis(0), grid.axis(1)
+    l_xy = solved.target[:, :, 0, 0].T
+    for ax, name in zip(axes.flat, names, strict=False):
+        states, outcome, goals = traces[name]
+        ax.contourf(x, y, l_xy, levels=[l_xy.min() - 1, 0.0], colors=["#404040"])
+        for e in range(states.shape[1]):
+            ax.plot(states[:, e, 0], states[:, e, 1], color=OUTCOME_COLORS[outcome[e]], lw=0.9)
+            ax.plot(*states[0, e, :2], "k.", ms=3)
+        ax.plot(goals[:, 0], goals[:, 1], "x", color="#2a9d2a", ms=4)
+        ax.set_title(name, fontsize=8)
+        ax.set_xlim(x[0], x[-1])
+        ax.set_ylim(y[0], y[-1])
+        ax.set_aspect("equal")
+        ax.tick_params(labelsize=6)
+    ax = axes.flat[len(names)]
+    pos = np.arange(len(rows))
+    ax.barh(pos - 0.2, [r["collision_rate"] for r in rows], 0.4, color="#d00000", label="collision rate")
+    ax.barh(pos + 0.2, [r["intervention_rate"] for r in rows], 0.4, color="#1f5fbf", label="intervention rate")
+    ax.set_yticks(pos, [r["filter"] for r in rows], fontsize=6)
+    ax.invert_yaxis()
+    ax.legend(fontsize=6)
+    ax.tick_params(labelsize=6)
+    for ax in list(axes.flat)[len(names) + 1:]:
+        ax.axis("off")
+    return save_figure(fig, path, f"closed loop on {solved.name} (all worlds in the bar chart)")
+
+
+def demo_animation(out: Path, shapes, occupancy: np.ndarray, resolution: float, log, goals: np.ndarray,
+                   gif: bool = True, view: float = 7.0, frame_s: float = 0.5) -> list[Path]:
+    """demo.png (whole run) and demo.gif (one frame per ``frame_s``): obstacles, the node's latest BRT
+    slice (red: V ≤ 0 at the robot's speed and heading), the path so far (orange where the filter
+    intervened), the robot and its goals; the view is [-view, view]²."""
+    from matplotlib import animation
+
+    del shapes  # the occupancy raster is what the robot and the node saw
+    size = occupancy.shape[0] * resolution
+    extent = (-size / 2, size / 2, -size / 2, size / 2)
+    states = np.array([s[:6] for s in log.states], float) if log.states else np.zeros((0, 6))
+    fig, ax = plt.subplots(figsize=(5.2, 5.2))
+    ax.imshow(occupancy.T > 50, origin="lower", extent=extent, cmap="Greys", vmin=0, vmax=1.6)
+    brt = ax.imshow(np.zeros((2, 2)), origin="lower", extent=(0, 1, 0, 1), cmap="Reds", vmin=0, vmax=2.5, alpha=0.5)
+    ax.plot(goals[:, 0], goals[:, 1], "x", color="#2a9d2a", ms=7)
+    path, = ax.plot([], [], color="#1f5fbf", lw=1.2)
+    over = ax.scatter([], [], s=4, color="#ff8800")
+    robot, = ax.plot([], [], "o", color="k", ms=5)
+    heading, = ax.plot([], [], "-", color="k", lw=1.5)
+    ax.set_xlim(-view, view)
+    ax.set_ylim(-view, view)
+    ax.set_aspect("equal")
+    title = ax.set_title("")
+
+    def draw(t: float) -> None:
+        k = np.searchsorted(states[:, 0], t, side="right") if len(states) else 0
+        seen = [g for g in log.grids if g[0] <= t]
+        if seen:
+            _, origin, res, mask = seen[-1]
+            brt.set_data(np.ma.masked_where(~mask.T, mask.T.astype(float)))
+            brt.set_extent((origin[0], origin[0] + mask.shape[0] * res, origin[1], origin[1] + mask.shape[1] * res))
+        if k:
+            s = states[:k]
+            path.set_data(s[:, 1], s[:, 2])
+            over.set_offsets(s[s[:, 5] > 0][:, 1:3] if (s[:, 5] > 0).any() else np.zeros((0, 2)))
+            x, y, _, th = s[-1, 1:5]
+            robot.set_data([x], [y])
+            heading.set_data([x, x + 0.6 * np.cos(th)], [y, y + 0.6 * np.sin(th)])
+        crash = log.collided_at is not None and t >= log.collided_at
+        title.set_text(f"t = {t:4.1f} s" + ("  COLLISION" if crash else "") + "  (red: BRT slice, orange: filtered)")
+
+    end = states[-1, 0] if len(states) else 0.0
+    out = Path(out)
+    written = []
+    if gif and len(states):
+        times = np.arange(0.0, end + frame_s, frame_s)
+        anim = animation.FuncAnimation(fig, draw, frames=times, interval=1000 * frame_s)
+        anim.save(out / "demo.gif", writer=animation.PillowWriter(fps=int(round(2 / frame_s))), dpi=70)
+        written.append(out / "demo.gif")
+    draw(end)
+    fig.savefig(out / "demo.png", dpi=90)
+    plt.close(fig)
+    return [out / "demo.png", *written]

@@ -44,12 +44,20 @@ class Decision:
     reason: str
 
 
-def safe_twist(params: CarParams, state: np.ndarray, grad: np.ndarray, dt: float) -> tuple[float, float]:
-    """The optimal safe control at ``state`` as (linear, angular) velocity commands."""
-    u = car_optimal_control(params, np.asarray(state, float), np.asarray(grad, float))
-    v = float(state[2])
-    linear = float(np.clip(v + u[0] * dt, params.v_min, params.v_max))
-    return linear, v * float(u[1])
+def safe_twist(params: CarParams, state: np.ndarray, grad: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The optimal safe control at ``state`` (one or a batch ``(n, 4)``) as (linear, angular) commands."""
+    state = np.asarray(state, float)
+    u = car_optimal_control(params, state, np.asarray(grad, float))
+    v = state[..., 2]
+    return np.clip(v + u[..., 0] * dt, params.v_min, params.v_max), v * u[..., 1]
+
+
+def nominal_weight(settings: FilterSettings, value: np.ndarray) -> np.ndarray:
+    """Share of the nominal command: 1 while V > ε (+ blend width), 0 at V ≤ ε, linear in between."""
+    value = np.asarray(value, float)
+    if settings.mode == "switch":
+        return (value > settings.epsilon).astype(float)
+    return np.clip((value - settings.epsilon) / settings.blend_width, 0.0, 1.0)
 
 
 def stop(value: float, reason: str) -> Decision:
@@ -64,10 +72,24 @@ def filter_command(params: CarParams, settings: FilterSettings, state: np.ndarra
         return stop(float(value), "non-finite state or value")
     if not (math.isfinite(linear) and math.isfinite(angular)):
         return stop(float(value), "non-finite nominal command")
-    if value > settings.epsilon + (settings.blend_width if settings.mode == "blend" else 0.0):
+    w = float(nominal_weight(settings, value))
+    if w == 1.0:
         return Decision(float(linear), float(angular), False, float(value), "pass")
-    safe_lin, safe_ang = safe_twist(params, state, grad, settings.dt)
-    if settings.mode == "switch" or value <= settings.epsilon:
+    safe_lin, safe_ang = (float(c) for c in safe_twist(params, state, grad, settings.dt))
+    if w == 0.0:
         return Decision(safe_lin, safe_ang, True, float(value), "safe control")
-    w = (value - settings.epsilon) / settings.blend_width  # 0 at ε, 1 at ε + width
     return Decision(w * linear + (1 - w) * safe_lin, w * angular + (1 - w) * safe_ang, True, float(value), "blend")
+
+
+def filter_batch(params: CarParams, settings: FilterSettings, states: np.ndarray, values: np.ndarray,
+                 grads: np.ndarray, nominal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`filter_command` for ``n`` robots at once: commands ``(n, 2)`` and intervened ``(n,)``.
+
+    Non-finite inputs fail closed (zero command), as in the scalar version."""
+    w = nominal_weight(settings, values)
+    safe = np.stack(safe_twist(params, states, grads, settings.dt), -1)
+    out = w[:, None] * nominal + (1 - w[:, None]) * safe
+    bad = ~(np.isfinite(states).all(-1) & np.isfinite(values) & np.isfinite(grads).all(-1)
+            & np.isfinite(nominal).all(-1))
+    out[bad] = 0.0
+    return out, (w < 1.0) | bad

@@ -1,4 +1,4 @@
-"""The six HJRNO scenario families, seeded and reproducible.
+"""The six HJRNO scenario families (and ``windows``, for the node's model), seeded and reproducible.
 
 A :class:`Scenario` is plain data (family, seed, shapes, params) that round-trips through JSON;
 it knows its dynamics, its default grid and its target l on a grid (l > 0 outside obstacles,
@@ -11,6 +11,8 @@ it knows its dynamics, its default grid and its target l on a grid (l > 0 outsid
 ``velocity``   one obstacle growing with speed: l(x, y, v) = sdf(x, y) − r(v), r "exp" or "log"
 ``parametric`` one obstacle; the car's limits (a_max, κ_max) are the sampled parameters
 ``air3d``      random evader and pursuer shapes in their body frames; l via the Minkowski sum
+``windows``    a robot-centred 10 m window of a larger (16 m) map: random blobs and wall segments
+               that cross the window edge, the window centre (the robot) ≥ 0.3 m from everything
 =============  ==============================================================================
 
 Reproducibility: the random stream is ``np.random.default_rng([seed, family index])`` (the
@@ -394,6 +396,45 @@ def _build_indoor(draw: _Draw) -> tuple[list, dict]:
     return walls + clutter, params
 
 
+WINDOW_MAP_HALF = 8.0  # m: windows family, obstacles anywhere in [-8, 8]² around the 10 m window
+ROBOT_CLEARANCE = 0.3  # m: windows family, free disk around the window centre (the robot)
+
+
+def _build_windows(draw: _Draw) -> tuple[list, dict]:
+    """What brt_node feeds its model: a window cut around the robot from a cluttered map, so
+    obstacles cross the window edge and may lie just outside it (they still shape l inside)."""
+    car, rng = draw.dynamics(CarParams), draw.rng
+    n_blobs, n_walls = draw.integer("n_blobs"), draw.integer("n_walls")
+    shapes, roles, centers, radii, thick, lengths = [], [], [], [], [], []
+    for _ in range(200 * n_blobs):
+        if len(centers) == n_blobs:
+            break
+        r = draw.uniform("radius")
+        c = rng.uniform(-WINDOW_MAP_HALF, WINDOW_MAP_HALF, 2)
+        if math.hypot(*c) >= r + ROBOT_CLEARANCE and all(math.dist(c, o) >= r + q + 0.3
+                                                           for o, q in zip(centers, radii, strict=True)):
+            shapes.append(random_smooth_shape(rng, c, (ROUNDNESS * r, r)))
+            centers.append(c.tolist())
+            radii.append(r)
+    if len(centers) < n_blobs:
+        raise ValueError(f"could not place {n_blobs} obstacles")
+    for _ in range(n_walls):
+        t, length = draw.uniform("wall_thickness"), draw.uniform("wall_length")
+        side = float(rng.choice([-1.0, 1.0]))
+        fixed = side * float(rng.uniform(ROBOT_CLEARANCE + t / 2, WINDOW_MAP_HALF - 1.0))
+        start = float(rng.uniform(-WINDOW_MAP_HALF, WINDOW_MAP_HALF - length))
+        a, b = (start, fixed), (start + length, fixed)
+        if rng.integers(2):
+            a, b = a[::-1], b[::-1]
+        shapes.append(_segment_box(a, b, t))
+        thick.append(t)
+        lengths.append(length)
+    roles = ["map"] * len(shapes)
+    params = {"n_blobs": n_blobs, "n_walls": n_walls, "radius": radii, "centers": centers, "wall_thickness": thick,
+              "wall_length": lengths, "shape_roles": roles, **car}
+    return shapes, params
+
+
 @dataclasses.dataclass(frozen=True)
 class FamilySpec:
     """A family: its sampling ranges (uniform; integers inclusive), categorical choices and builder."""
@@ -446,6 +487,13 @@ FAMILIES: dict[str, FamilySpec] = {
         "parametric", "car", {"a_max": (0.5, 1.5), "kappa_max": (0.5, 1.5), "radius": _SINGLE_RADIUS}, _build_parametric
     ),
     "air3d": FamilySpec("air3d", "air3d", {"evader_radius": (0.5, 1.5), "pursuer_radius": (0.5, 1.5)}, _build_air3d),
+    "windows": FamilySpec(
+        "windows",
+        "car",
+        {"n_blobs": (5, 12), "n_walls": (0, 2), "radius": (0.4, 1.2), "wall_thickness": (0.15, 0.3),
+         "wall_length": (3.0, 10.0)},
+        _build_windows,
+    ),
 }
 _FAMILY_INDEX = {name: i for i, name in enumerate(FAMILIES)}
 

@@ -6,30 +6,13 @@ import pickle
 import numpy as np
 import pytest
 import torch
+from conftest import SMALL
 from scipy.interpolate import RegularGridInterpolator
 
 from hjrno_ros import checkpoint, dataset, evaluation
 from hjrno_ros.slices import SliceSet, spec_for
 from hjrno_ros.training import TrainConfig, TrainingDiverged, train
 from hjrno_ros.value_function import LearnedValueFunction
-
-SMALL = {"width": 8, "modes": 4, "n_layers": 2}
-
-
-@pytest.fixture(scope="module")
-def ci_data(tmp_path_factory):
-    root = tmp_path_factory.mktemp("ci_data")
-    dataset.generate(dataset.load_config("ci"), root, progress=False)
-    return root
-
-
-@pytest.fixture(scope="module")
-def trained(ci_data, tmp_path_factory):
-    out = tmp_path_factory.mktemp("model") / "fno"
-    cfg = TrainConfig(data=str(ci_data), model="fno", model_config=SMALL, epochs=3, slices_per_epoch=256,
-                      batch=16, lr=3e-3, out=str(out))
-    train(cfg, progress=False, command="test")
-    return cfg, out
 
 
 def test_inputs_follow_the_slice_convention(ci_data):
@@ -140,3 +123,22 @@ def test_learned_value_function_gives_value_and_gradient(trained):
     assert value[0] <= v0_at_state + 1e-6  # V ≤ V0 by construction
     with pytest.raises(ValueError, match="finite"):
         vf.predict(np.full((20, 20), np.nan), np.zeros(1), np.zeros(1))
+
+
+def test_parametric_diagonal_figure(tmp_path):
+    import dataclasses
+
+    from hjrno_ros.operators import build_model
+
+    config = dataclasses.replace(dataset.load_config("ci"), name="ci_parametric", family="parametric",
+                                 parametric_grid=2, n_train=4, n_test=3)
+    dataset.generate(config, tmp_path / "data", progress=False)
+    test = dataset.load_split(tmp_path / "data" / "test.h5")
+    spec = spec_for(test)
+    assert spec.channels[-2:] == ["a_max", "kappa_max"]
+    diag = np.array([[s.params["a_max"], s.params["kappa_max"]] for s in test.scenarios])
+    assert np.allclose(diag[:, 0], diag[:, 1])  # the test split lies on the diagonal
+    model = build_model("fno", in_channels=len(spec.channels), **SMALL).eval()
+    card = {"kind": "fno", "inputs": spec.as_dict()}
+    path = evaluation.diagonal_figure(model, card, test, tmp_path / "diag.png")
+    assert path.stat().st_size > 10_000

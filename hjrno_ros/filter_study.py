@@ -1,0 +1,159 @@
+"""The closed-loop comparison of safety filters behind ``hjrno simulate`` (no ROS).
+
+Filters: ``none``; ``stop_zone`` (Nav2 collision-monitor style, :mod:`stop_zone`); the ground-truth
+HJ filter (V∞ table from the solver); learned HJ filters (a model's V table on the same window,
+with the model card's calibrated ε, or ε = 0 "uncalibrated").  Each HJ filter also runs in
+``blend`` mode.  Every filter sees the same worlds, starts, goals and disturbance sequences.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+from . import closed_loop, held_out
+from .closed_loop import EpisodeSettings, World
+from .safety_filter import FilterSettings, filter_batch
+from .stop_zone import StopZoneSettings, stop_zone_filter
+from .value_table import ValueTable
+
+TRUTH = "ground_truth"
+
+
+@dataclasses.dataclass(frozen=True)
+class FilterChoice:
+    """One row of the table: ``kind`` none | stop_zone | hj; ``source`` "ground_truth" or a model label."""
+
+    name: str
+    kind: str
+    source: str = ""
+    mode: str = "switch"
+    epsilon: float = 0.0
+
+
+def default_filters(models: dict[str, dict], truth_epsilon: float) -> list[FilterChoice]:
+    """none, stop_zone, ground truth (switch, blend with ε = δ) and per model: its card's calibrated ε
+    (switch, blend) and ε = δ alone ("no model margin": what calibration adds, measured)."""
+    rows = [FilterChoice("none", "none"), FilterChoice("stop_zone", "stop_zone"),
+            FilterChoice(TRUTH, "hj", TRUTH, "switch", truth_epsilon),
+            FilterChoice(f"{TRUTH}_blend", "hj", TRUTH, "blend", truth_epsilon)]
+    for label, card in models.items():
+        eps = card.get("epsilon")
+        if eps is not None:
+            rows += [FilterChoice(f"{label} (eps={eps:.3f})", "hj", label, "switch", float(eps)),
+                     FilterChoice(f"{label}_blend (eps={eps:.3f})", "hj", label, "blend", float(eps))]
+        rows.append(FilterChoice(f"{label} (eps={truth_epsilon:.3f}, no model margin)", "hj", label, "switch",
+                                 truth_epsilon))
+    return rows
+
+
+def make_filter(choice: FilterChoice, world: World, tables: dict[str, ValueTable],
+                stop: StopZoneSettings, dt: float) -> closed_loop.Filter | None:
+    if choice.kind == "none":
+        return None
+    if choice.kind == "stop_zone":
+        return lambda s, nominal: stop_zone_filter(stop, world.clearance, s, nominal)
+    table = tables[choice.source]
+    settings = FilterSettings(epsilon=choice.epsilon, mode=choice.mode, dt=dt)
+    return lambda s, nominal: filter_batch(world.params, settings, s, table.value(s), table.gradient(s), nominal)
+
+
+def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, seed: int = 0,
+              truth_epsilon: float = 0.0, part: str = "fresh", settings: EpisodeSettings = EpisodeSettings(),
+              stop: StopZoneSettings = StopZoneSettings(), filters: list[str] | None = None,
+              progress=print) -> dict:
+    """Run every filter over ≥ ``episodes`` episodes spread evenly over the held-out worlds."""
+    from . import checkpoint
+
+    solved = held_out.load(folders, part)
+    if not solved:
+        raise ValueError(f"no converged held-out scenarios in {folders} ({part})")
+    cards = {label: checkpoint.load_card(stem) for label, stem in models.items()}
+    choices = default_filters(cards, truth_epsilon)
+    if filters:
+        choices = [c for c in choices if any(c.name.startswith(f) for f in filters)]
+        if not choices:
+            raise ValueError(f"--filters {filters} match none of the filters")
+    start = time.perf_counter()
+    predicted = {label: held_out.predict(stem, solved) for label, stem in models.items()}
+    infer_s = (time.perf_counter() - start) / max(len(solved), 1)
+    per_world = -(-episodes // len(solved))
+    results: dict[str, list[dict]] = {c.name: [] for c in choices}
+    traces: dict[str, list] = {c.name: [] for c in choices}
+    for w, s in enumerate(solved):
+        world = World(s.name, s.scenario.shapes, ValueTable(s.grid, s.value), s.scenario.dynamics_params())
+        tables = {TRUTH: world.truth, **{label: ValueTable(s.grid, p[w]) for label, p in predicted.items()}}
+        eps = closed_loop.draw_episodes(world, per_world, settings, seed=seed * 100003 + w, first=w * per_world)
+        for c in choices:
+            filt = make_filter(c, world, tables, stop, settings.dt)
+            r = closed_loop.run_episodes(world, eps, filt, settings, trace=w == 0)
+            traces[c.name] = r.pop("trace") if w == 0 else traces[c.name]
+            results[c.name].append(r)
+        progress(f"world {w + 1}/{len(solved)} {s.name}: {per_world} episodes x {len(choices)} filters, "
+                 f"{time.perf_counter() - start:.0f} s")
+    rows = [{"filter": c.name, "epsilon": c.epsilon if c.kind == "hj" else None, "mode": c.mode if c.kind == "hj"
+             else c.kind, **closed_loop.summarize(results[c.name])} for c in choices]
+    return {"rows": rows, "worlds": [s.name for s in solved], "episodes_per_world": per_world,
+            "map_inference_ms": 1e3 * infer_s, "settings": dataclasses.asdict(settings),
+            "stop_zone": dataclasses.asdict(stop), "models": {k: str(v) for k, v in models.items()},
+            "seed": seed, "truth_epsilon": truth_epsilon, "first_world": solved[0], "traces": traces}
+
+
+COLUMNS = [("filter", "filter", "{}"), ("episodes", "episodes", "{}"), ("collisions", "collisions", "{}"),
+           ("collisions_worst_d", "of them worst-case d", "{}"), ("intervention_rate", "intervention rate", "{:.3f}"),
+           ("goals_reached", "goals reached", "{:.2f}"), ("distance_m", "distance m", "{:.2f}"),
+           ("min_clearance_m", "min clearance m", "{:.3f}"), ("mean_min_clearance_m", "mean min clearance m",
+                                                              "{:.2f}"),
+           ("jerk_rms", "jerk m/s³ (rms)", "{:.2f}"), ("angacc_rms", "ang. acc. rad/s² (rms)", "{:.2f}"),
+           ("filter_us", "filter µs/decision", "{:.0f}")]
+
+
+def write_tables(study: dict, out: Path, command: str) -> tuple[Path, Path, Path]:
+    """closed_loop.md (+ targets checked), closed_loop.csv and closed_loop.json under ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    rows = study["rows"]
+    with (out / "closed_loop.csv").open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    head = "| " + " | ".join(c[1] for c in COLUMNS) + " |"
+    lines = [head, "|" + " --- |" * len(COLUMNS)]
+    lines += ["| " + " | ".join(fmt.format(r[k]) for k, _, fmt in COLUMNS) + " |" for r in rows]
+    md = [f"# Closed-loop safety filters ({time.strftime('%Y-%m-%d')})", "", f"Command: `{command}`", "",
+          f"{len(study['worlds'])} held-out worlds ({', '.join(sorted({w.split('/')[0] for w in study['worlds']}))}), "
+          f"{study['episodes_per_world']} episodes each; duration {study['settings']['duration']} s, "
+          f"dt {study['settings']['dt']} s; controllers alternate goal / straight, disturbance alternates "
+          "random / worst-case (ground-truth gradient), ‖d‖ ≤ d_max.  Learned maps: "
+          f"{study['map_inference_ms']:.0f} ms per world for the whole (v, θ) table (all models).", "",
+          *lines, "", *check_targets(rows)]
+    (out / "closed_loop.md").write_text("\n".join(md) + "\n")
+    meta = {k: v for k, v in study.items() if k not in ("traces", "first_world")}
+    (out / "closed_loop.json").write_text(json.dumps({**meta, "command": command}, indent=1, default=str))
+    return out / "closed_loop.md", out / "closed_loop.csv", out / "closed_loop.json"
+
+
+def check_targets(rows: list[dict]) -> list[str]:
+    """The issue's targets, checked against the table: each learned filter with its calibrated ε has 0
+    collisions in ≥ 500 episodes and intervenes ≤ 1.2× as often as the ground-truth filter of its mode."""
+    by = {r["filter"]: r for r in rows}
+    lines = ["Targets:"]
+    for r in rows:
+        name = r["filter"]
+        if r["mode"] not in ("switch", "blend") or name.startswith(TRUTH) or "no model margin" in name:
+            continue
+        ok = r["collisions"] == 0 and r["episodes"] >= 500
+        lines.append(f"- {name}: {r['collisions']} collisions in {r['episodes']} episodes "
+                     f"({'met' if ok else 'MISSED'}: 0 in ≥ 500)")
+        truth = by.get(TRUTH if r["mode"] == "switch" else f"{TRUTH}_blend")
+        if truth:
+            ratio = r["intervention_rate"] / max(truth["intervention_rate"], 1e-12)
+            lines.append(f"- {name}: intervention rate {ratio:.2f}× that of {truth['filter']} "
+                         f"({'met' if ratio <= 1.2 else 'MISSED'}: ≤ 1.2×)")
+    for name in ("stop_zone", "none"):
+        if name in by:
+            lines.append(f"- {name}: {by[name]['collisions']} collisions, intervention rate "
+                         f"{by[name]['intervention_rate']:.3f}, goals reached {by[name]['goals_reached']:.2f}")
+    return lines

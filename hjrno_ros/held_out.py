@@ -1,0 +1,65 @@
+"""Held-out solved scenarios (dataset test splits) and a model's value tables on them.
+
+Calibration and the closed-loop study both need scenarios the model never trained on, with
+their ground truth.  A test split is cut in two (``calibration.held_out_halves``): the first half
+calibrates ε, the second ("fresh") half tests the calibrated model, in numbers and in closed loop.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from .dataset import load_split
+from .grids import GridSpec
+from .scenarios import Scenario
+
+PARTS = ("calibration", "fresh", "all")
+
+
+@dataclasses.dataclass(frozen=True)
+class Solved:
+    """One held-out scenario: its exact geometry, grid, l and V∞ (``(Nx, Ny, Nv, Nθ)``)."""
+
+    name: str
+    scenario: Scenario
+    grid: GridSpec
+    target: np.ndarray
+    value: np.ndarray
+
+
+def load(folders: list[str | Path], part: str = "fresh") -> list[Solved]:
+    """Converged test-split scenarios of the dataset folders, restricted to ``part``."""
+    from .calibration import held_out_halves
+
+    if part not in PARTS:
+        raise ValueError(f"part must be one of {PARTS}, got {part!r}")
+    out = []
+    for folder in folders:
+        split = load_split(Path(folder) / "test.h5", converged_only=True)
+        if split.grid.ndim != 4:
+            raise ValueError(f"{folder}: closed-loop and calibration need car datasets, not {split.config.family}")
+        calib, fresh = held_out_halves(len(split.scenarios))
+        chosen = {"calibration": calib, "fresh": fresh, "all": calib + fresh}[part]
+        out += [Solved(f"{split.config.name}/{split.scenarios[i].seed}", split.scenarios[i], split.grid,
+                       split.target[i], split.value[i]) for i in chosen]
+    return out
+
+
+def predict(stem: str | Path, solved: list[Solved]) -> list[np.ndarray]:
+    """The model's V on each scenario's whole grid (metres), min'd with l as the node does."""
+    import torch
+
+    from . import checkpoint
+    from .evaluation import predict_table, sample_params
+    from .slices import InputSpec
+
+    model, card = checkpoint.load_model(stem)
+    spec = InputSpec.from_dict(card["inputs"])
+    if spec.kind != "car":
+        raise ValueError(f"{stem}: a car model is needed, this one is {spec.kind!r}")
+    with torch.no_grad():
+        return [np.minimum(predict_table(model, spec, s.grid, s.target, sample_params(spec, s.scenario)), s.target)
+                for s in solved]

@@ -1,0 +1,24 @@
+"""Shared fixtures: the tiny ``ci`` dataset (real solves) and a tiny FNO trained on it (real torch)."""
+
+import pytest
+
+from hjrno_ros import dataset
+from hjrno_ros.training import TrainConfig, train
+
+SMALL = {"width": 8, "modes": 4, "n_layers": 2}
+
+
+@pytest.fixture(scope="session")
+def ci_data(tmp_path_factory):
+    root = tmp_path_factory.mktemp("ci_data")
+    dataset.generate(dataset.load_config("ci"), root, progress=False)
+    return root
+
+
+@pytest.fixture(scope="session")
+def trained(ci_data, tmp_path_factory):
+    out = tmp_path_factory.mktemp("model") / "fno"
+    cfg = TrainConfig(data=str(ci_data), model="fno", model_config=SMALL, epochs=3, slices_per_epoch=256,
+                      batch=16, lr=3e-3, out=str(out))
+    train(cfg, progress=False, command="test")
+    return cfg, out

@@ -1,0 +1,129 @@
+"""Closed loop, calibration and the demo: real solves, real torch models, real rclpy over DDS."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from hjrno_ros import calibration, checkpoint, closed_loop, problems
+from hjrno_ros.closed_loop import EpisodeSettings, World
+from hjrno_ros.dynamics import CarParams
+from hjrno_ros.geometry import Disk
+from hjrno_ros.safety_filter import FilterSettings, filter_batch, filter_command
+from hjrno_ros.solver import solve
+from hjrno_ros.stop_zone import StopZoneSettings, stop_zone_filter
+from hjrno_ros.value_table import ValueTable
+
+HJRNO = [sys.executable, "-m", "hjrno_ros.cli"]
+PARAMS = CarParams()
+
+
+@pytest.mark.parametrize("mode", ["switch", "blend"])
+def test_batch_filter_matches_the_scalar_filter(mode):
+    rng = np.random.default_rng(0)
+    n = 200
+    states = np.column_stack([rng.normal(size=(n, 2)), rng.uniform(0, 1, n), rng.uniform(-np.pi, np.pi, n)])
+    values, grads = rng.uniform(-0.2, 0.6, n), rng.normal(size=(n, 4))
+    nominal = np.column_stack([rng.uniform(0, 1, n), rng.uniform(-1, 1, n)])
+    settings = FilterSettings(epsilon=0.1, mode=mode)
+    out, intervened = filter_batch(PARAMS, settings, states, values, grads, nominal)
+    for i in range(n):
+        d = filter_command(PARAMS, settings, states[i], values[i], grads[i], *nominal[i])
+        assert (d.linear, d.angular, d.intervened) == pytest.approx((*out[i], intervened[i]))
+    assert 0 < intervened.mean() < 1
+
+
+def test_batch_filter_fails_closed_on_nan():
+    states = np.array([[0.0, 0.0, 0.5, 0.0], [0.0, 0.0, 0.5, 0.0]])
+    out, intervened = filter_batch(PARAMS, FilterSettings(), states, np.array([np.nan, 1.0]), np.zeros((2, 4)),
+                                   np.array([[1.0, 0.0], [np.nan, 0.0]]))
+    assert np.all(out == 0) and intervened.all()
+
+
+def test_stop_zone_scales_stops_and_passes():
+    disk = Disk((2.0, 0.0), 0.5)
+    clearance = lambda p: disk.sdf(np.asarray(p)[..., :2])  # noqa: E731
+    states = np.array([[0.0, 0.0, 1.0, 0.0],      # heading at the disk, contact after ~1.45 s
+                       [0.0, 0.0, 1.0, np.pi],    # heading away
+                       [1.3, 0.0, 0.0, np.pi / 2]])  # 0.2 m from the disk: inside the stop zone
+    nominal = np.array([[1.0, 0.0], [1.0, 0.0], [0.5, 0.3]])
+    out, intervened = stop_zone_filter(StopZoneSettings(), clearance, states, nominal)
+    assert 0.6 < out[0, 0] < 0.8 and intervened[0]
+    assert np.array_equal(out[1], nominal[1]) and not intervened[1]
+    assert np.all(out[2] == 0) and intervened[2]
+
+
+@pytest.fixture(scope="module")
+def disk_world():
+    problem = problems.disk((32, 32, 9, 16))
+    value, report = solve(problem.dynamics, problem.grid, problem.target)
+    assert report.converged
+    return World("disk", tuple(problem.shapes), ValueTable(problem.grid, value), problem.dynamics.params)
+
+
+def test_ground_truth_filter_prevents_the_collisions_of_the_careless_driver(disk_world):
+    settings = EpisodeSettings(duration=12.0)
+    episodes = closed_loop.draw_episodes(disk_world, 40, settings, seed=3)
+    assert np.all(disk_world.truth.value(episodes.starts) >= settings.start_margin)
+    table = disk_world.truth
+    hj = lambda s, nominal: filter_batch(PARAMS, FilterSettings(epsilon=0.1), s, table.value(s),  # noqa: E731
+                                         table.gradient(s), nominal)
+    free = closed_loop.run_episodes(disk_world, episodes, None, settings)
+    safe = closed_loop.run_episodes(disk_world, episodes, hj, settings, trace=True)
+    assert (free["outcome"] == "collision").sum() >= 3
+    assert (safe["outcome"] == "collision").sum() == 0
+    assert np.all(safe["min_clearance"] > 0)
+    row = closed_loop.summarize([safe])
+    assert 0 < row["intervention_rate"] < 0.5 and row["goals_reached"] > 0
+    path = safe["trace"][0]
+    assert path.shape == (241, 40, 4) and np.isnan(path[-1]).any() == (safe["steps"] < 240).any()
+
+
+def test_conformal_rank_and_calibrated_margin_cover_fresh_draws():
+    assert calibration.conformal_rank(100, 0.05, 0.5) == 96  # the textbook ceil((n + 1)(1 - alpha)) region
+    with pytest.raises(ValueError, match="need at least 59"):
+        calibration.conformal_rank(50, 0.05, 0.05)
+    rng = np.random.default_rng(1)
+    truth = [rng.uniform(-1, 1, (30, 30)) for _ in range(6)]
+    pred = [t + rng.normal(0, 0.2, t.shape) for t in truth]
+    cal = calibration.calibrate(pred, truth, alpha=0.05, beta=0.05, n=4000, seed=2, margin=0.05)
+    assert 0.05 < cal.epsilon < 0.6 and cal.precision_bound >= cal.precision_estimate
+    fresh_t = [rng.uniform(-1, 1, (30, 30)) for _ in range(6)]
+    fresh_p = [t + rng.normal(0, 0.2, t.shape) for t in fresh_t]
+    before, after = (calibration.error_rates(fresh_p, fresh_t, e) for e in (0.0, cal.epsilon))
+    assert after["miss_rate"] <= 0.05 < before["miss_rate"]
+    assert after["conservative_rate"] > before["conservative_rate"]
+
+
+def test_calibrate_and_simulate_commands(trained, tmp_path):
+    _, stem = trained
+    local = tmp_path / "model"
+    for src in checkpoint.paths(stem):
+        (tmp_path / ("model" + src.suffix)).write_bytes(src.read_bytes())
+    weights_before = checkpoint.paths(local)[0].read_bytes()
+    run = subprocess.run([*HJRNO, "calibrate", "--model", str(local), "--draws", "2000", "--alpha", "0.05"],
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    card = checkpoint.load_card(local)
+    assert card["epsilon"] >= 0.1 and card["calibration"]["alpha"] == 0.05  # ε ≥ the default margin δ
+    assert card["calibration"]["fresh_after"]["epsilon"] == card["epsilon"]
+    assert checkpoint.paths(local)[0].read_bytes() == weights_before
+    out = tmp_path / "sim"
+    run = subprocess.run([*HJRNO, "simulate", "--model", f"tiny={local}", "--episodes", "6", "--duration", "4",
+                          "--out", str(out), "--quiet"], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    rows = json.loads((out / "closed_loop.json").read_text())["rows"]
+    names = [r["filter"] for r in rows]
+    assert names[:4] == ["none", "stop_zone", "ground_truth", "ground_truth_blend"]
+    assert any(n.startswith("tiny (eps=") for n in names) and len(rows) == 7
+    assert all(r["episodes"] == 6 for r in rows)
+    assert (out / "closed_loop.png").stat().st_size > 10_000 and "Targets:" in (out / "closed_loop.md").read_text()
+
+
+def test_calibrate_refuses_too_few_draws(trained):
+    _, stem = trained
+    run = subprocess.run([*HJRNO, "calibrate", "--model", str(stem), "--draws", "50", "--alpha", "0.01",
+                          "--dry-run"], capture_output=True, text=True)
+    assert run.returncode == 2 and "need at least" in run.stderr and len(run.stderr.strip().splitlines()) == 1
