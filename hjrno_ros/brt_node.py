@@ -126,7 +126,7 @@ PARAMETERS: dict[str, tuple[Any, str, dict]] = {
     "inference_threads": (1, "torch CPU threads for inference (keeps cores free for the command path)",
                           {"read_only": True, "integer_range": [IntegerRange(from_value=1, to_value=64, step=1)]}),
     "epsilon": (-1.0, "m: intervene when V <= epsilon; -1 (startup only) = the model card's value, else 0.1", {}),
-    "filter_mode": ("switch", "switch (least restrictive) | blend (ramp over blend_width above epsilon)", {}),
+    "filter_mode": ("blend", "blend (ramp over blend_width above epsilon) | switch (only at V <= epsilon)", {}),
     "blend_width": (0.2, "m: blend mode ramps from safe to nominal over (epsilon, epsilon + blend_width]",
                     {"floating_point_range": _float_range(1e-3, 10.0)}),
     "value_clip": (1.0, "m: value grid palette, V <= 0 -> 100, V >= value_clip -> 0",

@@ -222,9 +222,10 @@ def test_parameter_updates_are_validated(ros):
     driver, node = ros
     eps = driver.status["epsilon"]
     assert node.get_parameter("epsilon").value == -1.0  # the start-up sentinel may stay while others change
-    assert driver.set_param("filter_mode", "blend") == (True, "")
-    assert wait_for(lambda: driver.status["filter_mode"] == "blend", 2.0)
-    assert driver.set_param("filter_mode", "switch")[0]
+    assert driver.status["filter_mode"] == "blend"  # the default
+    assert driver.set_param("filter_mode", "switch") == (True, "")
+    assert wait_for(lambda: driver.status["filter_mode"] == "switch", 2.0)
+    assert driver.set_param("filter_mode", "blend")[0]
     for name, value, words in (("epsilon", -1.0, "epsilon"), ("filter_mode", "magic", "filter_mode"),
                                ("control_period", 0.0, "control_period")):
         ok, reason = driver.set_param(name, value)
