@@ -204,7 +204,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     study = filter_study.run_study(folders, models, args.episodes, args.seed, args.truth_epsilon, args.part,
                                    EpisodeSettings(duration=args.duration),
                                    filters=args.filters.split(",") if args.filters else None,
-                                   progress=(lambda m: None) if args.quiet else print)
+                                   progress=(lambda m: None) if args.quiet else print,
+                                   unconverged=args.allow_unconverged)
     out = Path(args.out)
     command = "hjrno " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("hjrno") else "hjrno simulate ..."
     md, _, _ = filter_study.write_tables(study, out, command)
@@ -315,6 +316,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data", default=None, help="dataset folders, comma-separated (default: the first model "
                    "card's); worlds are the second halves of their test splits")
     p.add_argument("--part", default="fresh", choices=["fresh", "calibration", "all"])
+    p.add_argument("--allow-unconverged", action="store_true", help="also use test scenarios whose solve did not "
+                   "meet the convergence tolerance (their ground truth is approximate)")
     p.add_argument("--episodes", type=int, default=500, help="at least this many episodes per filter")
     p.add_argument("--duration", type=float, default=20.0, help="episode length, s")
     p.add_argument("--truth-epsilon", type=float, default=0.1, help="delta: margin of the ground-truth filter "

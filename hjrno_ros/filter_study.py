@@ -64,11 +64,11 @@ def make_filter(choice: FilterChoice, world: World, tables: dict[str, ValueTable
 def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, seed: int = 0,
               truth_epsilon: float = 0.0, part: str = "fresh", settings: EpisodeSettings = EpisodeSettings(),
               stop: StopZoneSettings = StopZoneSettings(), filters: list[str] | None = None,
-              progress=print) -> dict:
+              progress=print, unconverged: bool = False) -> dict:
     """Run every filter over ≥ ``episodes`` episodes spread evenly over the held-out worlds."""
     from . import checkpoint
 
-    solved = held_out.load(folders, part)
+    solved = held_out.load(folders, part, unconverged)
     if not solved:
         raise ValueError(f"no converged held-out scenarios in {folders} ({part})")
     cards = {label: checkpoint.load_card(stem) for label, stem in models.items()}
@@ -99,7 +99,8 @@ def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, s
     return {"rows": rows, "worlds": [s.name for s in solved], "episodes_per_world": per_world,
             "map_inference_ms": 1e3 * infer_s, "settings": dataclasses.asdict(settings),
             "stop_zone": dataclasses.asdict(stop), "models": {k: str(v) for k, v in models.items()},
-            "seed": seed, "truth_epsilon": truth_epsilon, "first_world": solved[0], "traces": traces}
+            "seed": seed, "truth_epsilon": truth_epsilon, "unconverged_worlds_allowed": unconverged,
+            "first_world": solved[0], "traces": traces}
 
 
 COLUMNS = [("filter", "filter", "{}"), ("episodes", "episodes", "{}"), ("collisions", "collisions", "{}"),

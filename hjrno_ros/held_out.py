@@ -30,15 +30,15 @@ class Solved:
     value: np.ndarray
 
 
-def load(folders: list[str | Path], part: str = "fresh") -> list[Solved]:
-    """Converged test-split scenarios of the dataset folders, restricted to ``part``."""
+def load(folders: list[str | Path], part: str = "fresh", unconverged: bool = False) -> list[Solved]:
+    """Converged (with ``unconverged``: all) test-split scenarios of the dataset folders, restricted to ``part``."""
     from .calibration import held_out_halves
 
     if part not in PARTS:
         raise ValueError(f"part must be one of {PARTS}, got {part!r}")
     out = []
     for folder in folders:
-        split = load_split(Path(folder) / "test.h5", converged_only=True)
+        split = load_split(Path(folder) / "test.h5", converged_only=not unconverged)
         if split.grid.ndim != 4:
             raise ValueError(f"{folder}: closed-loop and calibration need car datasets, not {split.config.family}")
         calib, fresh = held_out_halves(len(split.scenarios))
