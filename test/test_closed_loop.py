@@ -127,3 +127,25 @@ def test_calibrate_refuses_too_few_draws(trained):
     run = subprocess.run([*HJRNO, "calibrate", "--model", str(stem), "--draws", "50", "--alpha", "0.01",
                           "--dry-run"], capture_output=True, text=True)
     assert run.returncode == 2 and "need at least" in run.stderr and len(run.stderr.strip().splitlines()) == 1
+
+
+def test_held_out_halves_and_unconverged_worlds(ci_data):
+    import h5py
+
+    from hjrno_ros import held_out
+
+    calib, fresh = calibration.held_out_halves(5)
+    assert calib == [0, 1, 2] and fresh == [3, 4]
+    with pytest.raises(ValueError, match="at least 2"):
+        calibration.held_out_halves(1)
+    assert len(held_out.load([ci_data], "all")) == 2
+    with h5py.File(ci_data / "test.h5", "r+") as f:  # flag one test sample as not converged
+        flags = f["converged"][...]
+        f["converged"][0] = False
+    try:
+        with pytest.raises(ValueError, match="at least 2 held-out scenarios"):  # one converged left
+            held_out.load([ci_data], "all")
+        assert len(held_out.load([ci_data], "all", unconverged=True)) == 2
+    finally:
+        with h5py.File(ci_data / "test.h5", "r+") as f:
+            f["converged"][...] = flags
