@@ -237,6 +237,35 @@ def occupancy_array(msg: OccupancyGrid) -> np.ndarray:
     return flat.reshape(msg.info.height, msg.info.width).T
 
 
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def occupancy_message(occupancy: np.ndarray, resolution: float, origin: tuple[float, float],
+                      frame_id: str = "map") -> OccupancyGrid:
+    """The inverse of :func:`occupancy_array`: an int8 raster ``[ix, iy]`` as an OccupancyGrid (no stamp)."""
+    msg = OccupancyGrid()
+    msg.header.frame_id = frame_id
+    msg.info.resolution = float(resolution)  # rclpy does not type-check fields: an int would be garbage
+    msg.info.width, msg.info.height = occupancy.shape
+    msg.info.origin.position.x, msg.info.origin.position.y = float(origin[0]), float(origin[1])
+    msg.info.origin.orientation.w = 1.0
+    msg.data = array.array("b", np.ascontiguousarray(occupancy.T, np.int8).tobytes())
+    return msg
+
+
+def odometry_message(x: float, y: float, yaw: float, speed: float, frame_id: str, stamp) -> Odometry:
+    """Odometry of a planar robot: pose (x, y, yaw) in ``frame_id``, forward speed in twist.linear.x."""
+    msg = Odometry()
+    msg.header.frame_id = frame_id
+    msg.child_frame_id = "base_link"
+    msg.header.stamp = stamp
+    msg.pose.pose.position.x, msg.pose.pose.position.y = float(x), float(y)
+    q = msg.pose.pose.orientation
+    q.z, q.w = math.sin(yaw / 2), math.cos(yaw / 2)
+    msg.twist.twist.linear.x = float(speed)
+    return msg
+
+
 @dataclasses.dataclass(frozen=True)
 class MapData:
     occupancy: np.ndarray  # int8 [ix, iy]
@@ -394,8 +423,7 @@ class BrtNode(Node):
         state_group = MutuallyExclusiveCallbackGroup()
         map_group = MutuallyExclusiveCallbackGroup()
         misc_group = MutuallyExclusiveCallbackGroup()
-        map_qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        map_qos = LATCHED
         self._cmd_pub = self.create_publisher(cmd_type, cfg["cmd_vel_out_topic"], 10)
         self._grid_pub = self.create_publisher(OccupancyGrid, cfg["value_grid_topic"], map_qos)
         self._value_pub = self.create_publisher(Float32MultiArray, cfg["value_topic"], 1)
@@ -896,7 +924,7 @@ class BenchDriver(Node):
     def __init__(self, context: Any, pose: tuple[float, float, float], speed: float, frame_id: str = "map",
                  odom_rate: float = 50.0, cmd_rate: float = 20.0) -> None:
         super().__init__("brt_bench_driver", context=context)
-        qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        qos = LATCHED
         self.pose, self.speed, self.frame_id = pose, speed, frame_id
         self.map_pub = self.create_publisher(OccupancyGrid, "map", qos)
         self.odom_pub = self.create_publisher(Odometry, "odom", 10)
@@ -914,26 +942,14 @@ class BenchDriver(Node):
         self.create_timer(1.0 / cmd_rate, self._cmd)
 
     def publish_map(self, occupancy: np.ndarray, resolution: float, origin: tuple[float, float], sec: int) -> None:
-        msg = OccupancyGrid()
-        msg.header.frame_id = self.frame_id
+        msg = occupancy_message(occupancy, resolution, origin, self.frame_id)
         msg.header.stamp.sec = sec
-        msg.info.resolution = float(resolution)  # rclpy does not type-check fields: an int would be garbage
-        msg.info.width, msg.info.height = occupancy.shape
-        msg.info.origin.position.x, msg.info.origin.position.y = float(origin[0]), float(origin[1])
-        msg.info.origin.orientation.w = 1.0
-        msg.data = array.array("b", np.ascontiguousarray(occupancy.T, np.int8).tobytes())
         self.map_sent[(sec, 0)] = time.perf_counter()
         self.map_pub.publish(msg)
 
     def _odom(self) -> None:
-        msg = Odometry()
-        msg.header.frame_id = self.frame_id
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.pose.pose.position.x, msg.pose.pose.position.y = float(self.pose[0]), float(self.pose[1])
-        q = msg.pose.pose.orientation
-        q.z, q.w = math.sin(self.pose[2] / 2), math.cos(self.pose[2] / 2)
-        msg.twist.twist.linear.x = float(self.speed)
-        self.odom_pub.publish(msg)
+        self.odom_pub.publish(odometry_message(*self.pose, self.speed, self.frame_id,
+                                               self.get_clock().now().to_msg()))
 
     def _cmd(self) -> None:
         if not self.sending:

@@ -27,7 +27,8 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from scipy import stats
+
+DEFAULT_MARGIN = 0.1  # m: δ, what the ground-truth switch filter needed in closed loop (README, closed loop)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,6 +57,8 @@ def held_out_halves(n: int) -> tuple[list[int], list[int]]:
 
 def conformal_rank(n: int, alpha: float, beta: float) -> int:
     """Smallest k with P(Binomial(n, 1 − α) ≥ k) ≤ β; ValueError if even k = n is not enough."""
+    from scipy import stats  # here, not at import: the command line imports this module for its defaults
+
     if not (0 < alpha < 1 and 0 < beta < 1):
         raise ValueError(f"alpha and beta must lie in (0, 1), got {alpha}, {beta}")
     k = np.arange(1, n + 1)
@@ -86,6 +89,8 @@ def _draw(rng: np.random.Generator, pred: list[np.ndarray], truth: list[np.ndarr
 def calibrate(pred: list[np.ndarray], truth: list[np.ndarray], alpha: float = 0.01, beta: float = 0.05,
               n: int = 20000, seed: int = 0, margin: float = 0.0) -> Calibration:
     """ε from value tables predicted / solved on the calibration scenarios (one array each)."""
+    from scipy import stats
+
     if not margin >= 0:
         raise ValueError(f"margin must be >= 0, got {margin}")
     rng = np.random.default_rng(seed)
@@ -118,14 +123,15 @@ def error_rates(pred: list[np.ndarray], truth: list[np.ndarray], epsilon: float)
             "conservative_rate": mean(cons)}
 
 
-def calibrate_model(stem, folders: list, alpha: float, beta: float, n: int, seed: int = 0, margin: float = 0.0,
-                    write: bool = True) -> dict:
+def calibrate_model(stem, folders: list, alpha: float, beta: float, n: int, seed: int = 0,
+                    margin: float = DEFAULT_MARGIN, write: bool = True) -> dict:
     """Calibrate ε on the first half of the test splits, measure on the second, write it into the card."""
     from . import checkpoint, held_out
 
     calib, fresh = held_out.load(folders, "calibration"), held_out.load(folders, "fresh")
-    result = calibrate(held_out.predict(stem, calib), [s.value for s in calib], alpha, beta, n, seed, margin)
-    pred_fresh, truth_fresh = held_out.predict(stem, fresh), [s.value for s in fresh]
+    pred = held_out.predict(stem, calib + fresh)
+    result = calibrate(pred[:len(calib)], [s.value for s in calib], alpha, beta, n, seed, margin)
+    pred_fresh, truth_fresh = pred[len(calib):], [s.value for s in fresh]
     entry = {**result.as_dict(), "seed": seed, "data": [str(f) for f in folders],
              "calibration_scenarios": [s.name for s in calib], "fresh_scenarios": [s.name for s in fresh],
              "fresh_before": error_rates(pred_fresh, truth_fresh, 0.0),

@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 from . import __version__
+from .calibration import DEFAULT_MARGIN
 
 
 def _shape(text: str) -> tuple[int, ...]:
@@ -300,8 +301,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", default="models/default", help="model stem (default: models/default)")
     p.add_argument("--data", default=None, help="dataset folders, comma-separated (default: the card's); the "
                    "first half of each test split calibrates, the second half tests")
-    p.add_argument("--margin", type=float, default=0.1, help="delta, m: the margin the ground-truth filter needs "
-                   "in closed loop (see hjrno simulate); calibration covers {V_gt <= delta} (default 0.1)")
+    p.add_argument("--margin", type=float, default=DEFAULT_MARGIN, help="delta, m: the margin the ground-truth "
+                   "filter needs in closed loop (see hjrno simulate); calibration covers {V_gt <= delta} "
+                   f"(default {DEFAULT_MARGIN})")
     p.add_argument("--alpha", type=float, default=0.002, help="allowed miss rate P(V_pred > eps | V_gt <= delta) "
                    "(default 0.002)")
     p.add_argument("--beta", type=float, default=0.05, help="1 - confidence")
@@ -320,8 +322,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "meet the convergence tolerance (their ground truth is approximate)")
     p.add_argument("--episodes", type=int, default=500, help="at least this many episodes per filter")
     p.add_argument("--duration", type=float, default=20.0, help="episode length, s")
-    p.add_argument("--truth-epsilon", type=float, default=0.1, help="delta: margin of the ground-truth filter "
-                   "(sampled-data and grid error), m (default 0.1)")
+    p.add_argument("--truth-epsilon", type=float, default=DEFAULT_MARGIN, help="delta: margin of the ground-truth "
+                   f"filter (sampled-data and grid error), m (default {DEFAULT_MARGIN})")
     p.add_argument("--filters", default=None, help="only filters whose names start with these, comma-separated")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")

@@ -22,6 +22,7 @@ import numpy as np
 from .dynamics import CarParams, car_f, car_worst_disturbance
 from .geometry import union_sdf
 from .grids import wrap_angle
+from .simulation import ball, rk4_step
 from .value_table import ValueTable
 
 CONTROLLERS = ("goal", "straight")
@@ -72,12 +73,6 @@ class Episodes:
     noise: np.ndarray
 
 
-def ball(rng: np.random.Generator, shape: tuple[int, ...], radius: float) -> np.ndarray:
-    direction = rng.normal(size=(*shape, 2))
-    direction /= np.maximum(np.linalg.norm(direction, axis=-1, keepdims=True), 1e-12)
-    return radius * np.sqrt(rng.uniform(size=(*shape, 1))) * direction
-
-
 def draw_episodes(world: World, n: int, settings: EpisodeSettings, seed: int, first: int = 0) -> Episodes:
     """``n`` episodes with starts in the true safe set; episode ``first + i`` alternates controller
     (even: goal, odd: straight) and disturbance (pairs: random, worst)."""
@@ -125,12 +120,8 @@ def twist_to_control(params: CarParams, states: np.ndarray, twist: np.ndarray, d
 
 
 def rk4(params: CarParams, x: np.ndarray, u: np.ndarray, d: np.ndarray, dt: float) -> np.ndarray:
-    f = lambda s: car_f(params, s, u, d)  # noqa: E731
-    k1 = f(x)
-    k2 = f(x + 0.5 * dt * k1)
-    k3 = f(x + 0.5 * dt * k2)
-    k4 = f(x + dt * k3)
-    x = x + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+    """One RK4 step of the car, θ wrapped."""
+    x = rk4_step(lambda s, u_, d_: car_f(params, s, u_, d_), x, u, d, dt)
     x[:, 3] = wrap_angle(x[:, 3])
     return x
 

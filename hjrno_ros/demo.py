@@ -59,7 +59,7 @@ def demo_world(seed: int = 0, obstacles: int = 6) -> tuple[list, np.ndarray, np.
 
 
 def run(out: Path, seconds: float = 40.0, seed: int = 0, model: str | None = None, use_filter: bool = True,
-        gif: bool = True, params: CarParams | None = None) -> int:
+        gif: bool = True) -> int:
     """Run the demo; print and write the summary and figures; 1 on collision, else 0."""
     from . import checkpoint
     from .brt_node import resolve_model
@@ -69,7 +69,7 @@ def run(out: Path, seconds: float = 40.0, seed: int = 0, model: str | None = Non
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     stem = resolve_model(model or "")
-    params = params or CarParams(**checkpoint.load_card(stem)["dynamics"])
+    params = CarParams(**checkpoint.load_card(stem)["dynamics"])
     shapes, occupancy, start, goals = demo_world(seed)
     domain = free_domain()
     robot = {"shapes": shapes, "params": params, "occupancy": occupancy, "resolution": RESOLUTION,
@@ -90,7 +90,7 @@ def run(out: Path, seconds: float = 40.0, seed: int = 0, model: str | None = Non
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
     from .plotting import demo_animation
 
-    figures = demo_animation(out, shapes, occupancy, RESOLUTION, log, goals, gif=gif)
+    figures = demo_animation(out, occupancy, RESOLUTION, log, goals, gif=gif)
     print("\n".join(f"{k:<24} {v}" for k, v in summary.items()))
     print("wrote " + ", ".join(str(p) for p in [out / "summary.json", *figures]))
     return 1 if summary["collided"] else 0

@@ -1,9 +1,10 @@
 """The closed-loop comparison of safety filters behind ``hjrno simulate`` (no ROS).
 
 Filters: ``none``; ``stop_zone`` (Nav2 collision-monitor style, :mod:`stop_zone`); the ground-truth
-HJ filter (V∞ table from the solver); learned HJ filters (a model's V table on the same window,
-with the model card's calibrated ε, or ε = 0 "uncalibrated").  Each HJ filter also runs in
-``blend`` mode.  Every filter sees the same worlds, starts, goals and disturbance sequences.
+HJ filter (V∞ table from the solver, margin δ); learned HJ filters (a model's V table on the same
+window, with the model card's calibrated ε, and with δ alone: "no model margin").  The ground-truth
+and calibrated filters also run in ``blend`` mode.  Every filter sees the same worlds, starts, goals
+and disturbance sequences.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import time
 from pathlib import Path
 
 from . import closed_loop, held_out
+from .calibration import DEFAULT_MARGIN
 from .closed_loop import EpisodeSettings, World
 from .safety_filter import FilterSettings, filter_batch
 from .stop_zone import StopZoneSettings, stop_zone_filter
@@ -62,7 +64,7 @@ def make_filter(choice: FilterChoice, world: World, tables: dict[str, ValueTable
 
 
 def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, seed: int = 0,
-              truth_epsilon: float = 0.0, part: str = "fresh", settings: EpisodeSettings = EpisodeSettings(),
+              truth_epsilon: float = DEFAULT_MARGIN, part: str = "fresh", settings: EpisodeSettings = EpisodeSettings(),
               stop: StopZoneSettings = StopZoneSettings(), filters: list[str] | None = None,
               progress=print, unconverged: bool = False) -> dict:
     """Run every filter over ≥ ``episodes`` episodes spread evenly over the held-out worlds."""
@@ -82,7 +84,7 @@ def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, s
     infer_s = (time.perf_counter() - start) / max(len(solved), 1)
     per_world = -(-episodes // len(solved))
     results: dict[str, list[dict]] = {c.name: [] for c in choices}
-    traces: dict[str, list] = {c.name: [] for c in choices}
+    traces: dict[str, tuple] = {}
     for w, s in enumerate(solved):
         world = World(s.name, s.scenario.shapes, ValueTable(s.grid, s.value), s.scenario.dynamics_params())
         tables = {TRUTH: world.truth, **{label: ValueTable(s.grid, p[w]) for label, p in predicted.items()}}
@@ -90,7 +92,8 @@ def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, s
         for c in choices:
             filt = make_filter(c, world, tables, stop, settings.dt)
             r = closed_loop.run_episodes(world, eps, filt, settings, trace=w == 0)
-            traces[c.name] = r.pop("trace") if w == 0 else traces[c.name]
+            if w == 0:
+                traces[c.name] = r.pop("trace")
             results[c.name].append(r)
         progress(f"world {w + 1}/{len(solved)} {s.name}: {per_world} episodes x {len(choices)} filters, "
                  f"{time.perf_counter() - start:.0f} s")

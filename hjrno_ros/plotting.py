@@ -121,14 +121,13 @@ def closed_loop_figure(path: str | Path, solved, traces: dict, rows: list[dict])
     return save_figure(fig, path, f"closed loop on {solved.name} (all worlds in the bar chart)")
 
 
-def demo_animation(out: Path, shapes, occupancy: np.ndarray, resolution: float, log, goals: np.ndarray,
+def demo_animation(out: Path, occupancy: np.ndarray, resolution: float, log, goals: np.ndarray,
                    gif: bool = True, view: float = 7.0, frame_s: float = 0.5) -> list[Path]:
     """demo.png (whole run) and demo.gif (one frame per ``frame_s``): obstacles, the node's latest BRT
     slice (red: V ≤ 0 at the robot's speed and heading), the path so far (orange where the filter
     intervened), the robot and its goals; the view is [-view, view]²."""
     from matplotlib import animation
 
-    del shapes  # the occupancy raster is what the robot and the node saw
     size = occupancy.shape[0] * resolution
     extent = (-size / 2, size / 2, -size / 2, size / 2)
     states = np.array([s[:6] for s in log.states], float) if log.states else np.zeros((0, 6))

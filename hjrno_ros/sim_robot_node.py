@@ -10,7 +10,6 @@ interventions, command latency and value-grid snapshots for :mod:`hjrno_ros.demo
 
 from __future__ import annotations
 
-import array
 import dataclasses
 import json
 import math
@@ -23,14 +22,14 @@ from geometry_msgs.msg import TwistStamped
 from nav_msgs.msg import OccupancyGrid, Odometry
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
 
 from . import closed_loop
+from .brt_node import LATCHED, occupancy_array, occupancy_message, odometry_message
+from .closed_loop import EpisodeSettings
 from .dynamics import CarParams
 from .geometry import union_sdf
-
-MAP_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+from .simulation import ball
 
 
 @dataclasses.dataclass
@@ -66,54 +65,37 @@ class SimRobot(Node):
         self._filtered_at = -math.inf
         self._sent: dict[tuple[int, int], tuple[float, np.ndarray]] = {}
         self._intervened = False
-        self.map_pub = self.create_publisher(OccupancyGrid, "map", MAP_QOS)
+        self.map_pub = self.create_publisher(OccupancyGrid, "map", LATCHED)
         self.odom_pub = self.create_publisher(Odometry, "odom", 10)
         self.cmd_pub = self.create_publisher(TwistStamped, "cmd_vel_smoothed", 10)
         self.create_subscription(TwistStamped, "cmd_vel", self._on_cmd, 50)
-        self.create_subscription(OccupancyGrid, "brt/value_grid", self._on_grid, MAP_QOS)
+        self.create_subscription(OccupancyGrid, "brt/value_grid", self._on_grid, LATCHED)
         self.create_subscription(String, "brt/status", lambda m: setattr(self.log, "status", json.loads(m.data)), 10)
-        self.publish_map(occupancy, resolution, origin)
+        grid = occupancy_message(occupancy, resolution, origin)
+        grid.header.stamp = self.get_clock().now().to_msg()
+        self.map_pub.publish(grid)
         self.create_timer(self.dt, self._step)
         self.create_timer(1.0 / cmd_rate, self._command)
 
     def now(self) -> float:
         return time.monotonic() - self.t0
 
-    def publish_map(self, occupancy: np.ndarray, resolution: float, origin: tuple[float, float]) -> None:
-        msg = OccupancyGrid()
-        msg.header.frame_id = "map"
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.info.resolution = float(resolution)
-        msg.info.width, msg.info.height = occupancy.shape
-        msg.info.origin.position.x, msg.info.origin.position.y = float(origin[0]), float(origin[1])
-        msg.info.origin.orientation.w = 1.0
-        msg.data = array.array("b", np.ascontiguousarray(occupancy.T, np.int8).tobytes())  # x fastest
-        self.map_pub.publish(msg)
-
     def _step(self) -> None:
         """Physics at odom_rate: integrate with the latest filtered command, publish odometry."""
         if self.running and self.log.collided_at is None:
             twist = self._filtered if time.monotonic() - self._filtered_at <= self.cmd_timeout else np.zeros(2)
             u = closed_loop.twist_to_control(self.params, self.x, twist[None], self.control_period)
-            d = closed_loop.ball(self.rng, (1,), self.params.d_max)
+            d = ball(self.rng, (1,), self.params.d_max)
             self.x = closed_loop.rk4(self.params, self.x, u, d, self.dt)
             t = self.now()
             self.log.states.append((t, *self.x[0], self._intervened))
             if union_sdf(self.shapes, self.x[:, :2])[0] <= 0:
                 self.log.collided_at = t
-            elif np.linalg.norm(self.x[0, :2] - self.goals[self.goal_index]) <= 0.3:
+            elif np.linalg.norm(self.x[0, :2] - self.goals[self.goal_index]) <= EpisodeSettings.goal_tolerance:
                 self.goal_index = (self.goal_index + 1) % len(self.goals)
                 self.log.goals.append((t, *self.goals[self.goal_index]))
         x, y, v, theta = self.x[0]
-        msg = Odometry()
-        msg.header.frame_id = "map"
-        msg.child_frame_id = "base_link"
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.pose.pose.position.x, msg.pose.pose.position.y = float(x), float(y)
-        q = msg.pose.pose.orientation
-        q.z, q.w = math.sin(theta / 2), math.cos(theta / 2)
-        msg.twist.twist.linear.x = float(v)
-        self.odom_pub.publish(msg)
+        self.odom_pub.publish(odometry_message(x, y, theta, v, "map", self.get_clock().now().to_msg()))
 
     def _command(self) -> None:
         """The careless nominal command: straight for the current goal."""
@@ -125,11 +107,11 @@ class SimRobot(Node):
         msg.header.frame_id = "base_link"
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.twist.linear.x, msg.twist.angular.z = float(nominal[0]), float(nominal[1])
-        self._sent[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = (time.perf_counter(), nominal)
         self.log.commands += 1
         if self.direct:
             self._filtered, self._filtered_at = nominal, time.monotonic()
         else:
+            self._sent[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = (time.perf_counter(), nominal)
             self.cmd_pub.publish(msg)
 
     def _on_cmd(self, msg: TwistStamped) -> None:
@@ -144,7 +126,7 @@ class SimRobot(Node):
         self.log.interventions += self._intervened
 
     def _on_grid(self, msg: OccupancyGrid) -> None:
-        cost = np.frombuffer(bytes(msg.data), np.int8).reshape(msg.info.height, msg.info.width).T
+        cost = occupancy_array(msg)
         origin = (msg.info.origin.position.x, msg.info.origin.position.y)
         self.log.grids.append((self.now(), origin, msg.info.resolution, cost >= 100))
 

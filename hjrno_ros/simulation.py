@@ -50,12 +50,7 @@ def simulate(
         if not alive.any():
             break
         xa = x[alive]
-        u, d = control(xa), disturbance(xa)
-        k1 = f(xa, u, d)
-        k2 = f(xa + 0.5 * dt * k1, u, d)
-        k3 = f(xa + 0.5 * dt * k2, u, d)
-        k4 = f(xa + dt * k3, u, d)
-        xa = xa + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+        xa = rk4_step(f, xa, control(xa), disturbance(xa), dt)
         if wrap is not None:
             xa = wrap(xa)
         x[alive] = xa
@@ -68,6 +63,23 @@ def simulate(
     return Rollouts(collided=np.isfinite(t_hit), collision_time=t_hit, min_clearance=min_l, final=x)
 
 
+def rk4_step(f: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray], x: np.ndarray, u: np.ndarray,
+             d: np.ndarray, dt: float) -> np.ndarray:
+    """One classical RK4 step of ẋ = f(x, u, d) with u and d held over the step."""
+    k1 = f(x, u, d)
+    k2 = f(x + 0.5 * dt * k1, u, d)
+    k3 = f(x + 0.5 * dt * k2, u, d)
+    k4 = f(x + dt * k3, u, d)
+    return x + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+
+def ball(rng: np.random.Generator, shape: tuple[int, ...], radius: float) -> np.ndarray:
+    """Samples ``(*shape, 2)`` uniform in the disk of ``radius``."""
+    direction = rng.normal(size=(*shape, 2))
+    direction /= np.maximum(np.linalg.norm(direction, axis=-1, keepdims=True), 1e-12)
+    return radius * np.sqrt(rng.uniform(size=(*shape, 1))) * direction
+
+
 def wrap_car(states: np.ndarray) -> np.ndarray:
     """Wrap θ of car states to [-π, π)."""
     states = states.copy()
@@ -75,16 +87,9 @@ def wrap_car(states: np.ndarray) -> np.ndarray:
     return states
 
 
-def ball_noise(d_max: float, rng: np.random.Generator, dims: int = 2) -> Feedback:
-    """Random disturbance, uniform in the ball ‖d‖ ≤ d_max, drawn anew at every step."""
-
-    def draw(states: np.ndarray) -> np.ndarray:
-        n = states.shape[0]
-        direction = rng.normal(size=(n, dims))
-        direction /= np.maximum(np.linalg.norm(direction, axis=-1, keepdims=True), 1e-12)
-        return d_max * rng.uniform(size=(n, 1)) ** (1.0 / dims) * direction
-
-    return draw
+def ball_noise(d_max: float, rng: np.random.Generator) -> Feedback:
+    """Random disturbance, uniform in the disk ‖d‖ ≤ d_max, drawn anew at every step."""
+    return lambda states: ball(rng, (states.shape[0],), d_max)
 
 
 def car_optimal_feedback(params: CarParams, table: ValueTable) -> tuple[Feedback, Feedback]:
