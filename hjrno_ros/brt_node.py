@@ -126,9 +126,12 @@ PARAMETERS: dict[str, tuple[Any, str, dict]] = {
     "inference_threads": (1, "torch CPU threads for inference (keeps cores free for the command path)",
                           {"read_only": True, "integer_range": [IntegerRange(from_value=1, to_value=64, step=1)]}),
     "epsilon": (-1.0, "m: intervene when V <= epsilon; -1 (startup only) = the model card's value, else 0.1", {}),
-    "filter_mode": ("blend", "blend (ramp over blend_width above epsilon) | switch (only at V <= epsilon)", {}),
+    "filter_mode": ("blend", "blend (ramp over blend_width above epsilon) | switch (only at V <= epsilon) | qp "
+                             "(smallest change keeping dV/dt >= -decay_rate (V - epsilon))", {}),
     "blend_width": (0.2, "m: blend mode ramps from safe to nominal over (epsilon, epsilon + blend_width]",
                     {"floating_point_range": _float_range(1e-3, 10.0)}),
+    "decay_rate": (4.0, "1/s: qp mode keeps dV/dt >= -decay_rate * (V - epsilon) under the worst disturbance",
+                   {"floating_point_range": _float_range(1e-3, 100.0)}),
     "value_clip": (1.0, "m: value grid palette, V <= 0 -> 100, V >= value_clip -> 0",
                    {"floating_point_range": _float_range(1e-3, 100.0)}),
     "a_max": (-1.0, "m/s^2: -1 = model card; any other value must equal the card's", _RO),
@@ -163,8 +166,8 @@ def validate_parameters(cfg: dict[str, Any], startup: bool = False) -> str | Non
         return f"epsilon must be finite and >= 0 (-1 = model card, at startup only), got {eps}"
     if cfg["filter_mode"] not in safety_filter.MODES:
         return f"filter_mode must be one of {list(safety_filter.MODES)}, got {cfg['filter_mode']!r}"
-    positive = ("blend_width", "value_clip", "inference_rate", "recenter_distance", "odom_timeout", "value_timeout",
-                "control_period")
+    positive = ("blend_width", "decay_rate", "value_clip", "inference_rate", "recenter_distance", "odom_timeout",
+                "value_timeout", "control_period")
     for name in positive:
         if not (math.isfinite(cfg[name]) and cfg[name] > 0):
             return f"{name} must be finite and > 0, got {cfg[name]}"
@@ -496,7 +499,8 @@ class BrtNode(Node):
 
     def _filter_settings(self, cfg: dict[str, Any]) -> safety_filter.FilterSettings:
         return safety_filter.FilterSettings(epsilon=self._effective_epsilon(cfg["epsilon"]), mode=cfg["filter_mode"],
-                                            blend_width=float(cfg["blend_width"]), dt=float(cfg["control_period"]))
+                                            blend_width=float(cfg["blend_width"]), dt=float(cfg["control_period"]),
+                                            decay_rate=float(cfg["decay_rate"]))
 
     # ------------------------------------------------------------------ parameters
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:

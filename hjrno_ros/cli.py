@@ -90,7 +90,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     from . import dataset
 
     config = dataset.load_config(args.experiment, args.config)
-    overrides = (("grid", args.grid), ("n_train", args.n_train), ("n_test", args.n_test))
+    overrides = (("grid", args.grid), ("n_train", args.n_train), ("n_test", args.n_test), ("seed", args.seed))
     changes = {k: v for k, v in overrides if v is not None}
     if changes:
         config = dataclasses.replace(config, **changes)
@@ -206,7 +206,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                                    EpisodeSettings(duration=args.duration),
                                    filters=args.filters.split(",") if args.filters else None,
                                    progress=(lambda m: None) if args.quiet else print,
-                                   unconverged=args.allow_unconverged)
+                                   unconverged=args.allow_unconverged,
+                                   **({"decay_rate": args.decay_rate} if args.decay_rate else {}))
     out = Path(args.out)
     command = "hjrno " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("hjrno") else "hjrno simulate ..."
     md, _, _ = filter_study.write_tables(study, out, command)
@@ -254,6 +255,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--grid", type=_shape, default=None, help="override the config's grid, e.g. 32,32,9,16")
     p.add_argument("--n-train", type=int, default=None, help="override the number of training samples")
     p.add_argument("--n-test", type=int, default=None, help="override the number of test samples")
+    p.add_argument("--seed", type=int, default=None, help="override the config's seed: sample i uses seed + i, "
+                   "so another seed gives new scenarios")
     p.add_argument("--shard", default=None, help="K/N: only samples with index mod N == K")
     p.add_argument("--workers", type=int, default=1, help="solver processes (default 1)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -325,6 +328,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--truth-epsilon", type=float, default=DEFAULT_MARGIN, help="delta: margin of the ground-truth "
                    f"filter (sampled-data and grid error), m (default {DEFAULT_MARGIN})")
     p.add_argument("--filters", default=None, help="only filters whose names start with these, comma-separated")
+    p.add_argument("--decay-rate", type=float, default=None,
+                   help="qp mode: dV/dt >= -rate (V - eps), 1/s (default: the node's, 4)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     p.add_argument("--out", default="benchmarks/results", help="results folder")

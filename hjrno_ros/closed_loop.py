@@ -22,6 +22,7 @@ import numpy as np
 from .dynamics import CarParams, car_f, car_worst_disturbance
 from .geometry import union_sdf
 from .grids import wrap_angle
+from .safety_filter import twist_to_control
 from .simulation import ball, rk4_step
 from .value_table import ValueTable
 
@@ -109,14 +110,6 @@ def nominal_twist(params: CarParams, states: np.ndarray, goals: np.ndarray, cont
     angular = np.clip(2.0 * error, -2.0, 2.0) * np.maximum(states[:, 2], 0.1)
     straight = controller == "straight"
     return np.column_stack([np.where(straight, params.v_max, linear), np.where(straight, 0.0, angular)])
-
-
-def twist_to_control(params: CarParams, states: np.ndarray, twist: np.ndarray, dt: float) -> np.ndarray:
-    """What the base does with a twist: a = (v_cmd − v)/dt within ±a_max, κ = ω / v within ±κ_max."""
-    v = states[:, 2]
-    accel = np.clip((twist[:, 0] - v) / dt, -params.a_max, params.a_max)
-    curvature = np.clip(twist[:, 1] / np.maximum(v, 1e-3), -params.kappa_max, params.kappa_max)
-    return np.column_stack([accel, curvature])
 
 
 def rk4(params: CarParams, x: np.ndarray, u: np.ndarray, d: np.ndarray, dt: float) -> np.ndarray:

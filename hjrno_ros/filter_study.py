@@ -3,7 +3,7 @@
 Filters: ``none``; ``stop_zone`` (Nav2 collision-monitor style, :mod:`stop_zone`); the ground-truth
 HJ filter (V∞ table from the solver, margin δ); learned HJ filters (a model's V table on the same
 window, with the model card's calibrated ε, and with δ alone: "no model margin").  The ground-truth
-and calibrated filters also run in ``blend`` mode.  Every filter sees the same worlds, starts, goals
+and calibrated filters also run in ``blend`` and ``qp`` mode.  Every filter sees the same worlds, starts, goals
 and disturbance sequences.
 """
 
@@ -18,7 +18,7 @@ from pathlib import Path
 from . import closed_loop, held_out
 from .calibration import DEFAULT_MARGIN
 from .closed_loop import EpisodeSettings, World
-from .safety_filter import FilterSettings, filter_batch
+from .safety_filter import MODES, FilterSettings, filter_batch
 from .stop_zone import StopZoneSettings, stop_zone_filter
 from .value_table import ValueTable
 
@@ -37,36 +37,39 @@ class FilterChoice:
 
 
 def default_filters(models: dict[str, dict], truth_epsilon: float) -> list[FilterChoice]:
-    """none, stop_zone, ground truth (switch, blend with ε = δ) and per model: its card's calibrated ε
-    (switch, blend) and ε = δ alone ("no model margin": what calibration adds, measured)."""
-    rows = [FilterChoice("none", "none"), FilterChoice("stop_zone", "stop_zone"),
-            FilterChoice(TRUTH, "hj", TRUTH, "switch", truth_epsilon),
-            FilterChoice(f"{TRUTH}_blend", "hj", TRUTH, "blend", truth_epsilon)]
+    """none, stop_zone, ground truth (switch, blend, qp with ε = δ) and per model: its card's calibrated
+    ε (switch, blend, qp) and ε = δ alone ("no model margin": what calibration adds, measured)."""
+    rows = [FilterChoice("none", "none"), FilterChoice("stop_zone", "stop_zone")]
+    rows += [FilterChoice(_name(TRUTH, mode), "hj", TRUTH, mode, truth_epsilon) for mode in MODES]
     for label, card in models.items():
         eps = card.get("epsilon")
         if eps is not None:
-            rows += [FilterChoice(f"{label} (eps={eps:.3f})", "hj", label, "switch", float(eps)),
-                     FilterChoice(f"{label}_blend (eps={eps:.3f})", "hj", label, "blend", float(eps))]
+            rows += [FilterChoice(f"{_name(label, mode)} (eps={eps:.3f})", "hj", label, mode, float(eps))
+                     for mode in MODES]
         rows.append(FilterChoice(f"{label} (eps={truth_epsilon:.3f}, no model margin)", "hj", label, "switch",
                                  truth_epsilon))
     return rows
 
 
+def _name(source: str, mode: str) -> str:
+    return source if mode == "switch" else f"{source}_{mode}"
+
+
 def make_filter(choice: FilterChoice, world: World, tables: dict[str, ValueTable],
-                stop: StopZoneSettings, dt: float) -> closed_loop.Filter | None:
+                stop: StopZoneSettings, dt: float, decay_rate: float) -> closed_loop.Filter | None:
     if choice.kind == "none":
         return None
     if choice.kind == "stop_zone":
         return lambda s, nominal: stop_zone_filter(stop, world.clearance, s, nominal)
     table = tables[choice.source]
-    settings = FilterSettings(epsilon=choice.epsilon, mode=choice.mode, dt=dt)
+    settings = FilterSettings(epsilon=choice.epsilon, mode=choice.mode, dt=dt, decay_rate=decay_rate)
     return lambda s, nominal: filter_batch(world.params, settings, s, table.value(s), table.gradient(s), nominal)
 
 
 def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, seed: int = 0,
               truth_epsilon: float = DEFAULT_MARGIN, part: str = "fresh", settings: EpisodeSettings = EpisodeSettings(),
               stop: StopZoneSettings = StopZoneSettings(), filters: list[str] | None = None,
-              progress=print, unconverged: bool = False) -> dict:
+              progress=print, unconverged: bool = False, decay_rate: float = FilterSettings.decay_rate) -> dict:
     """Run every filter over ≥ ``episodes`` episodes spread evenly over the held-out worlds."""
     from . import checkpoint
 
@@ -90,7 +93,7 @@ def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, s
         tables = {TRUTH: world.truth, **{label: ValueTable(s.grid, p[w]) for label, p in predicted.items()}}
         eps = closed_loop.draw_episodes(world, per_world, settings, seed=seed * 100003 + w, first=w * per_world)
         for c in choices:
-            filt = make_filter(c, world, tables, stop, settings.dt)
+            filt = make_filter(c, world, tables, stop, settings.dt, decay_rate)
             r = closed_loop.run_episodes(world, eps, filt, settings, trace=w == 0)
             if w == 0:
                 traces[c.name] = r.pop("trace")
@@ -102,7 +105,8 @@ def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, s
     return {"rows": rows, "worlds": [s.name for s in solved], "episodes_per_world": per_world,
             "map_inference_ms": 1e3 * infer_s, "settings": dataclasses.asdict(settings),
             "stop_zone": dataclasses.asdict(stop), "models": {k: str(v) for k, v in models.items()},
-            "seed": seed, "truth_epsilon": truth_epsilon, "unconverged_worlds_allowed": unconverged,
+            "seed": seed, "truth_epsilon": truth_epsilon, "qp_decay_rate": decay_rate,
+            "unconverged_worlds_allowed": unconverged,
             "first_world": solved[0], "traces": traces}
 
 
@@ -146,12 +150,12 @@ def check_targets(rows: list[dict]) -> list[str]:
     lines = ["Targets:"]
     for r in rows:
         name = r["filter"]
-        if r["mode"] not in ("switch", "blend") or name.startswith(TRUTH) or "no model margin" in name:
+        if r["mode"] not in MODES or name.startswith(TRUTH) or "no model margin" in name:
             continue
         ok = r["collisions"] == 0 and r["episodes"] >= 500
         lines.append(f"- {name}: {r['collisions']} collisions in {r['episodes']} episodes "
                      f"({'met' if ok else 'MISSED'}: 0 in ≥ 500)")
-        truth = by.get(TRUTH if r["mode"] == "switch" else f"{TRUTH}_blend")
+        truth = by.get(_name(TRUTH, r["mode"]))
         if truth:
             ratio = r["intervention_rate"] / max(truth["intervention_rate"], 1e-12)
             lines.append(f"- {name}: intervention rate {ratio:.2f}× that of {truth['filter']} "

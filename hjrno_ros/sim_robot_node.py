@@ -24,7 +24,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from std_msgs.msg import String
 
-from . import closed_loop
+from . import closed_loop, safety_filter
 from .brt_node import LATCHED, occupancy_array, occupancy_message, odometry_message
 from .closed_loop import EpisodeSettings
 from .dynamics import CarParams
@@ -84,7 +84,7 @@ class SimRobot(Node):
         """Physics at odom_rate: integrate with the latest filtered command, publish odometry."""
         if self.running and self.log.collided_at is None:
             twist = self._filtered if time.monotonic() - self._filtered_at <= self.cmd_timeout else np.zeros(2)
-            u = closed_loop.twist_to_control(self.params, self.x, twist[None], self.control_period)
+            u = safety_filter.twist_to_control(self.params, self.x, twist[None], self.control_period)
             d = ball(self.rng, (1,), self.params.d_max)
             self.x = closed_loop.rk4(self.params, self.x, u, d, self.dt)
             t = self.now()

@@ -220,14 +220,17 @@ def test_far_from_obstacles_command_passes_unchanged(ros):
 
 def test_parameter_updates_are_validated(ros):
     driver, node = ros
+    assert wait_for(lambda: "epsilon" in driver.status, 10.0)
     eps = driver.status["epsilon"]
     assert node.get_parameter("epsilon").value == -1.0  # the start-up sentinel may stay while others change
     assert driver.status["filter_mode"] == "blend"  # the default
     assert driver.set_param("filter_mode", "switch") == (True, "")
     assert wait_for(lambda: driver.status["filter_mode"] == "switch", 2.0)
-    assert driver.set_param("filter_mode", "blend")[0]
+    assert driver.set_param("filter_mode", "qp")[0] and driver.set_param("decay_rate", 8.0)[0]
+    assert wait_for(lambda: (node._settings.mode, node._settings.decay_rate) == ("qp", 8.0), 2.0)
+    assert driver.set_param("filter_mode", "blend")[0] and driver.set_param("decay_rate", 4.0)[0]
     for name, value, words in (("epsilon", -1.0, "epsilon"), ("filter_mode", "magic", "filter_mode"),
-                               ("control_period", 0.0, "control_period")):
+                               ("control_period", 0.0, "control_period"), ("decay_rate", -1.0, "decay_rate")):
         ok, reason = driver.set_param(name, value)
         assert not ok and words in reason, (name, reason)
     ok, _ = driver.set_param("epsilon", 0.2)

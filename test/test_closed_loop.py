@@ -9,9 +9,9 @@ import pytest
 
 from hjrno_ros import calibration, checkpoint, closed_loop, problems
 from hjrno_ros.closed_loop import EpisodeSettings, World
-from hjrno_ros.dynamics import CarParams
+from hjrno_ros.dynamics import CarParams, car_f, car_optimal_control, car_worst_disturbance
 from hjrno_ros.geometry import Disk
-from hjrno_ros.safety_filter import FilterSettings, filter_batch, filter_command
+from hjrno_ros.safety_filter import FilterSettings, filter_batch, filter_command, minimal_change
 from hjrno_ros.solver import solve
 from hjrno_ros.stop_zone import StopZoneSettings, stop_zone_filter
 from hjrno_ros.value_table import ValueTable
@@ -20,7 +20,7 @@ HJRNO = [sys.executable, "-m", "hjrno_ros.cli"]
 PARAMS = CarParams()
 
 
-@pytest.mark.parametrize("mode", ["switch", "blend"])
+@pytest.mark.parametrize("mode", ["switch", "blend", "qp"])
 def test_batch_filter_matches_the_scalar_filter(mode):
     rng = np.random.default_rng(0)
     n = 200
@@ -33,6 +33,30 @@ def test_batch_filter_matches_the_scalar_filter(mode):
         d = filter_command(PARAMS, settings, states[i], values[i], grads[i], *nominal[i])
         assert (d.linear, d.angular, d.intervened) == pytest.approx((*out[i], intervened[i]))
     assert 0 < intervened.mean() < 1
+
+
+def test_qp_mode_is_the_smallest_change_that_keeps_the_barrier_condition():
+    rng = np.random.default_rng(4)
+    n = 300
+    states = np.column_stack([rng.normal(size=(n, 2)), rng.uniform(0, 1, n), rng.uniform(-np.pi, np.pi, n)])
+    values, grads = rng.uniform(-0.2, 0.6, n), rng.normal(size=(n, 4))
+    nominal = np.column_stack([rng.uniform(-1, 1, n), rng.uniform(-1, 1, n)])  # (a, κ) within the limits
+    settings = FilterSettings(epsilon=0.1, mode="qp", decay_rate=2.0)
+    u, changed = minimal_change(PARAMS, settings, states, values, grads, nominal)
+
+    def rate(controls, x=states, g=grads):  # dV/dt under the worst-case disturbance
+        return (g * car_f(PARAMS, x, controls, car_worst_disturbance(PARAMS, x, g))).sum(-1)
+
+    need = -settings.decay_rate * (values - settings.epsilon)
+    assert np.array_equal(changed, rate(nominal) < need) and 0.2 < changed.mean() < 0.8
+    assert np.array_equal(u[~changed], nominal[~changed])
+    feasible = rate(car_optimal_control(PARAMS, states, grads)) >= need
+    assert np.all(rate(u)[feasible] >= need[feasible] - 1e-9) and 0 < (~feasible).sum()
+    grid = np.stack(np.meshgrid(np.linspace(-1, 1, 81), np.linspace(-1, 1, 81)), -1).reshape(-1, 2)
+    for i in np.flatnonzero(changed & feasible)[:40]:  # nothing on a fine grid of the box is closer
+        x, g = (np.broadcast_to(a[i], (len(grid), 4)) for a in (states, grads))
+        ok = rate(grid, x, g) >= need[i]
+        assert np.linalg.norm(u[i] - nominal[i]) <= np.linalg.norm(grid[ok] - nominal[i], axis=-1).min() + 1e-9
 
 
 def test_batch_filter_fails_closed_on_nan():
@@ -63,13 +87,14 @@ def disk_world():
     return World("disk", tuple(problem.shapes), ValueTable(problem.grid, value), problem.dynamics.params)
 
 
-def test_ground_truth_filter_prevents_the_collisions_of_the_careless_driver(disk_world):
+@pytest.mark.parametrize("mode", ["switch", "qp"])
+def test_ground_truth_filter_prevents_the_collisions_of_the_careless_driver(disk_world, mode):
     settings = EpisodeSettings(duration=12.0)
     episodes = closed_loop.draw_episodes(disk_world, 40, settings, seed=3)
     assert np.all(disk_world.truth.value(episodes.starts) >= settings.start_margin)
     table = disk_world.truth
-    hj = lambda s, nominal: filter_batch(PARAMS, FilterSettings(epsilon=0.1), s, table.value(s),  # noqa: E731
-                                         table.gradient(s), nominal)
+    hj = lambda s, nominal: filter_batch(PARAMS, FilterSettings(epsilon=0.1, mode=mode), s,  # noqa: E731
+                                         table.value(s), table.gradient(s), nominal)
     free = closed_loop.run_episodes(disk_world, episodes, None, settings)
     safe = closed_loop.run_episodes(disk_world, episodes, hj, settings, trace=True)
     assert (free["outcome"] == "collision").sum() >= 3
@@ -116,8 +141,8 @@ def test_calibrate_and_simulate_commands(trained, tmp_path):
     assert run.returncode == 0, run.stderr
     rows = json.loads((out / "closed_loop.json").read_text())["rows"]
     names = [r["filter"] for r in rows]
-    assert names[:4] == ["none", "stop_zone", "ground_truth", "ground_truth_blend"]
-    assert any(n.startswith("tiny (eps=") for n in names) and len(rows) == 7
+    assert names[:5] == ["none", "stop_zone", "ground_truth", "ground_truth_blend", "ground_truth_qp"]
+    assert any(n.startswith("tiny_qp (eps=") for n in names) and len(rows) == 9
     assert all(r["episodes"] == 6 for r in rows)
     assert (out / "closed_loop.png").stat().st_size > 10_000 and "Targets:" in (out / "closed_loop.md").read_text()
 
