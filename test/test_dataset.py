@@ -76,6 +76,15 @@ def test_killed_run_resumes_without_duplicates_or_losses(tmp_path):
     assert not list(root.rglob("*.tmp"))
 
 
+def test_seed_override_gives_new_scenarios(ci_run, tmp_path):
+    out = hjrno("generate", "--experiment", "ci", "--seed", "7", "--n-train", "1", "--n-test", "1", "--out",
+                str(tmp_path / "more"), "--quiet")
+    assert out.returncode == 0, out.stderr
+    train, test = (dataset.load_split(tmp_path / "more" / f"{s}.h5") for s in ("train", "test"))
+    assert [s.seed for s in train.scenarios] == [7] and [s.seed for s in test.scenarios] == [7 + 1_000_000]
+    assert not np.array_equal(train.target[0], dataset.load_split(ci_run / "train.h5").target[0])
+
+
 def test_shards_merge_into_the_same_dataset(ci_run, tmp_path):
     a, b = tmp_path / "a", tmp_path / "b"
     for k, folder in ((0, a), (1, b)):
