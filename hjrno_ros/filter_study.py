@@ -102,12 +102,14 @@ def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, s
                  f"{time.perf_counter() - start:.0f} s")
     rows = [{"filter": c.name, "epsilon": c.epsilon if c.kind == "hj" else None, "mode": c.mode if c.kind == "hj"
              else c.kind, **closed_loop.summarize(results[c.name])} for c in choices]
+    collided = {c.name: [int((r["outcome"] == "collision").sum()) for r in results[c.name]] for c in choices}
+    where = {name: {s.name: n for s, n in zip(solved, counts, strict=True) if n} for name, counts in collided.items()}
     return {"rows": rows, "worlds": [s.name for s in solved], "episodes_per_world": per_world,
             "map_inference_ms": 1e3 * infer_s, "settings": dataclasses.asdict(settings),
             "stop_zone": dataclasses.asdict(stop), "models": {k: str(v) for k, v in models.items()},
             "seed": seed, "truth_epsilon": truth_epsilon, "qp_decay_rate": decay_rate,
             "unconverged_worlds_allowed": unconverged,
-            "first_world": solved[0], "traces": traces}
+            "collisions_by_world": where, "first_world": solved[0], "traces": traces}
 
 
 COLUMNS = [("filter", "filter", "{}"), ("episodes", "episodes", "{}"), ("collisions", "collisions", "{}"),
@@ -136,7 +138,9 @@ def write_tables(study: dict, out: Path, command: str) -> tuple[Path, Path, Path
           f"dt {study['settings']['dt']} s; controllers alternate goal / straight, disturbance alternates "
           "random / worst-case (ground-truth gradient), ‖d‖ ≤ d_max.  Learned maps: "
           f"{study['map_inference_ms']:.0f} ms per world for the whole (v, θ) table (all models).", "",
-          *lines, "", *check_targets(rows)]
+          *lines, "", *check_targets(rows), "", "Collisions by world (HJ filters):",
+          *[f"- {name}: {', '.join(f'{w} ({n})' for w, n in worlds.items())}"
+            for name, worlds in study["collisions_by_world"].items() if worlds and name not in ("none", "stop_zone")]]
     (out / "closed_loop.md").write_text("\n".join(md) + "\n")
     meta = {k: v for k, v in study.items() if k not in ("traces", "first_world")}
     (out / "closed_loop.json").write_text(json.dumps({**meta, "command": command}, indent=1, default=str))

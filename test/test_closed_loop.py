@@ -139,7 +139,10 @@ def test_calibrate_and_simulate_commands(trained, tmp_path):
     run = subprocess.run([*HJRNO, "simulate", "--model", f"tiny={local}", "--episodes", "6", "--duration", "4",
                           "--out", str(out), "--quiet"], capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
-    rows = json.loads((out / "closed_loop.json").read_text())["rows"]
+    study = json.loads((out / "closed_loop.json").read_text())
+    rows = study["rows"]
+    assert {r["filter"]: r["collisions"] for r in rows} == {
+        name: sum(study["collisions_by_world"][name].values()) for name in study["collisions_by_world"]}
     names = [r["filter"] for r in rows]
     assert names[:5] == ["none", "stop_zone", "ground_truth", "ground_truth_blend", "ground_truth_qp"]
     assert any(n.startswith("tiny_qp (eps=") for n in names) and len(rows) == 9
