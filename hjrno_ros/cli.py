@@ -137,7 +137,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         raise ValueError(f"--model-config is not JSON: {err}") from None
     cfg = TrainConfig(data=data, model=args.model, model_config=model_config, epochs=args.epochs,
                       slices_per_epoch=args.slices_per_epoch, batch=args.batch, lr=args.lr, seed=args.seed,
-                      max_minutes=args.max_minutes, out=out)
+                      max_minutes=args.max_minutes, out=out, allow_unconverged=args.allow_unconverged,
+                      augment=args.augment)
     weights = train(cfg, progress=not args.quiet)
     print(f"wrote {weights} and {Path(out).name}.json")
     return 0
@@ -152,7 +153,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         print(Path(table).read_text())
         return 0
     figures = Path(args.out) / "figures" if args.figure else None
-    for row in evaluation.evaluate(args.model, args.data, train_limit=args.train_limit, figures=figures):
+    for row in evaluation.evaluate(args.model, args.data, train_limit=args.train_limit, figures=figures,
+                                   unconverged=args.allow_unconverged):
         table = evaluation.record(row, args.out)
         print(" | ".join(f"{k}={v}" for k, v in row.items()))
     print(f"updated {table}")
@@ -178,7 +180,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
     folders = _data_folders(args.data, args.model)
     entry = calibrate_model(args.model, folders, args.alpha, args.beta, args.draws, args.seed, args.margin,
-                            write=not args.dry_run)
+                            write=not args.dry_run, unconverged=args.allow_unconverged)
     before, after = entry["fresh_before"], entry["fresh_after"]
     print(f"epsilon = {entry['epsilon']:.4f} m (margin {entry['margin']:g} m, alpha {args.alpha}, beta {args.beta}, "
           f"n {entry['n']}, rank {entry['rank']}, {entry['scenarios']} calibration scenarios from "
@@ -287,6 +289,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (default: torch's choice; 1 is "
                    "faster when other jobs share the cores)")
     p.add_argument("--out", default=None, help="model stem (default: out/models/DATA_MODEL)")
+    p.add_argument("--allow-unconverged", action="store_true", help="also train and test on samples whose solve "
+                   "missed the convergence tolerance (counted in the card)")
+    p.add_argument("--augment", action="store_true", help="draw each training slice under a random one of the "
+                   "car's 8 exact symmetries (quarter turns, reflections; needs a square window)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_train)
 
@@ -298,6 +304,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--figure", action="store_true", help="also write a ground truth | prediction | error PNG")
     p.add_argument("--superres", type=int, default=0, help="zero-shot super-resolution test at this factor")
     p.add_argument("--samples", type=int, default=3, help="test samples solved at the fine grid (--superres)")
+    p.add_argument("--allow-unconverged", action="store_true", help="also score samples whose solve missed the "
+                   "convergence tolerance (the row's n_train/n_test says so)")
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("calibrate", help="split-conformal safety margin epsilon, written into the model card")
@@ -313,6 +321,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--draws", type=int, default=20000, help="calibration draws")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--dry-run", action="store_true", help="report only; leave the card as it is")
+    p.add_argument("--allow-unconverged", action="store_true", help="also use test scenarios whose solve did not "
+                   "meet the convergence tolerance (their ground truth is approximate)")
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("simulate", help="closed-loop episodes: collisions and interventions per safety filter")

@@ -83,17 +83,21 @@ def inference_ms(model, spec: InputSpec, shape: tuple[int, int], repeats: int = 
 
 
 def evaluate(stem: str | Path, data: str | Path | None = None, train_limit: int = 20,
-             figures: str | Path | None = None) -> list[dict]:
+             figures: str | Path | None = None, unconverged: bool = False) -> list[dict]:
     """Results rows of a trained model, one per dataset folder (its card's, or ``data``); with
-    ``figures``, also a ground truth | prediction | error PNG per folder there."""
+    ``figures``, also a ground truth | prediction | error PNG per folder there.  Samples whose solve
+    missed the tolerance are left out unless ``unconverged``."""
     model, card = checkpoint.load_model(stem)
     folders = [Path(d) for d in (str(data).split(",") if data else card["dataset"]["folders"])]
-    return [_evaluate_folder(model, card, Path(stem), folder, train_limit, figures) for folder in folders]
+    return [_evaluate_folder(model, card, Path(stem), folder, train_limit, figures, unconverged) for folder in folders]
 
 
-def _evaluate_folder(model, card: dict, stem: Path, data: Path, train_limit: int, figures) -> dict:
+def _evaluate_folder(model, card: dict, stem: Path, data: Path, train_limit: int, figures, unconverged: bool) -> dict:
     spec = InputSpec.from_dict(card["inputs"])
-    train, test = load_split(data / "train.h5", converged_only=True), load_split(data / "test.h5", converged_only=True)
+    train, test = (load_split(data / f"{s}.h5", converged_only=not unconverged) for s in ("train", "test"))
+    if not test.scenarios:
+        raise ValueError(f"{data}/test.h5: no converged test samples to score (--allow-unconverged scores the flagged)")
+    flagged = int((~train.converged).sum() + (~test.converged).sum())
     if figures:
         error_figure(model, card, test, Path(figures) / f"{test.config.name}_{checkpoint.paths(stem)[0].stem}.png")
         if test.config.family == "parametric":
@@ -107,7 +111,8 @@ def _evaluate_folder(model, card: dict, stem: Path, data: Path, train_limit: int
         "experiment": test.config.name,
         "model": f"{card['kind']} ({checkpoint.paths(stem)[0].stem})",
         "grid": "x".join(map(str, test.grid.shape)),
-        "n_train/n_test": f"{len(train.scenarios)}/{len(test.scenarios)}",
+        "n_train/n_test": f"{len(train.scenarios)}/{len(test.scenarios)}"
+                          + (f" ({flagged} unconverged)" if flagged else ""),
         "train_rel_l2": round(tr["rel_l2"], 4),
         "test_rel_l2": round(te["rel_l2"], 4),
         "test_iou": round(te["iou"], 4),

@@ -73,6 +73,23 @@ def spec_for(split) -> InputSpec:
     return InputSpec("car", scale, (grid.lo[2], grid.hi[2]), params)
 
 
+def symmetry(images: np.ndarray, theta: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Element ``k`` (0..7) of the square's symmetry group D4 applied per item to x-y slices
+    (B, Nx, Ny) and headings θ (B,) in rad: first, if k ≥ 4, the reflection y → −y (θ → −θ), then
+    k mod 4 quarter turns (x, y) → (−y, x) about the window centre (θ → θ + π/2 each).
+
+    The car's dynamics commute with these maps (the disturbance is a ball, the curvature bounds
+    are symmetric), so a transformed (V0, V∞) slice pair is another exact sample of the same
+    family: an 8-fold larger training set at no solving cost.  Needs a square window.
+    """
+    out = np.empty_like(images)
+    for b, kb in enumerate(np.asarray(k)):
+        image = images[b, :, ::-1] if kb >= 4 else images[b]
+        out[b] = np.rot90(image, kb % 4)
+    turned = np.where(np.asarray(k) >= 4, -theta, theta) + (np.asarray(k) % 4) * (np.pi / 2)
+    return out, (turned + np.pi) % (2 * np.pi) - np.pi
+
+
 class SliceSet:
     """All (sample, slice) pairs of a split, batched on demand as tensors (x, y)."""
 
@@ -92,12 +109,25 @@ class SliceSet:
         sample, rest = np.divmod(index, self.n_slices)
         return sample, np.unravel_index(rest, self.slice_shape)
 
-    def batch(self, index: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+    def check_symmetric(self) -> None:
+        """Raise unless :func:`symmetry` maps this split's slices onto exact samples."""
+        lo, hi, shape = self.split.grid.lo, self.split.grid.hi, self.split.grid.shape
+        if self.spec.kind != "car":
+            raise ValueError("symmetry augmentation is for the car (Air3D's relative frame is not symmetric)")
+        if shape[0] != shape[1] or not np.isclose(hi[0] - lo[0], hi[1] - lo[1]):
+            raise ValueError(f"symmetry augmentation needs a square x-y window, got {shape[:2]} nodes over "
+                             f"{hi[0] - lo[0]:g} m x {hi[1] - lo[1]:g} m")
+
+    def batch(self, index: np.ndarray, sym: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Inputs and targets of slices ``index``; ``sym`` (one 0..7 per item): apply :func:`symmetry`."""
         sample, sl = self.locate(np.asarray(index))
         v0 = self.split.target[(sample, slice(None), slice(None), *sl)]
         y = self.split.value[(sample, slice(None), slice(None), *sl)]
         v = self.speeds[sl[0]] if self.spec.kind == "car" else np.zeros(len(sample))
         angle = self.angles[sl[-1]]
+        if sym is not None:
+            v0, _ = symmetry(np.asarray(v0, np.float32), angle, sym)
+            y, angle = symmetry(np.asarray(y, np.float32), angle, sym)
         params = self.params[sample] if self.spec.param_ranges else None
         x = self.spec.inputs(v0, v, angle, params)
         return x, torch.from_numpy(np.asarray(y, np.float32) / self.spec.value_scale)[:, None]
@@ -118,13 +148,13 @@ class SliceUnion:
     def __len__(self) -> int:
         return int(self.offsets[-1])
 
-    def batch(self, index: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+    def batch(self, index: np.ndarray, sym: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         index = np.asarray(index)
         part = np.searchsorted(self.offsets, index, side="right") - 1
         xs, ys, order = [], [], []
         for k in np.unique(part):
             sel = np.flatnonzero(part == k)
-            x, y = self.parts[k].batch(index[sel] - self.offsets[k])
+            x, y = self.parts[k].batch(index[sel] - self.offsets[k], None if sym is None else np.asarray(sym)[sel])
             xs.append(x)
             ys.append(y)
             order.append(sel)

@@ -46,6 +46,8 @@ class TrainConfig:
     seed: int = 0
     max_minutes: float = 30.0  # stop (with a checkpoint) when this much wall time is spent
     out: str = "models/model"
+    allow_unconverged: bool = False  # also train on samples whose solve missed the tolerance (flagged in the card)
+    augment: bool = False  # draw each training slice under a random exact symmetry of the car (slices.symmetry)
 
     def resume_key(self) -> dict:
         d = dataclasses.asdict(self)
@@ -84,15 +86,20 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
     if cfg.epochs < 1 or cfg.batch < 1 or not cfg.lr > 0:
         raise ValueError(f"need epochs >= 1, batch >= 1, lr > 0; got {cfg.epochs}, {cfg.batch}, {cfg.lr}")
     folders = [Path(d) for d in cfg.data.split(",") if d]
-    train_splits = [load_split(d / "train.h5", converged_only=True) for d in folders]
-    test_splits = [load_split(d / "test.h5", converged_only=True) for d in folders]
+    converged_only = not cfg.allow_unconverged
+    train_splits = [load_split(d / "train.h5", converged_only=converged_only) for d in folders]
+    test_splits = [load_split(d / "test.h5", converged_only=converged_only) for d in folders]
     for split in train_splits + test_splits:
         if not split.scenarios:
-            raise ValueError(f"{split.config.name} {split.attrs['split']}: no converged samples to train or test on")
+            raise ValueError(f"{split.config.name} {split.attrs['split']}: no converged samples to train or test on "
+                             "(--allow-unconverged uses the flagged ones)")
     spec = spec_for(train_splits[0])
     if any(spec_for(s) != spec for s in train_splits):
         raise ValueError("datasets to combine need the same inputs (car vs Air3D, parameters, window)")
     train_set = SliceUnion([SliceSet(s, spec) for s in train_splits])
+    if cfg.augment:
+        for part in train_set.parts:
+            part.check_symmetric()
     test_set = SliceUnion([SliceSet(s, spec) for s in test_splits])
     torch.manual_seed(cfg.seed)
     model_config = {**DEFAULT_MODEL_CONFIGS[cfg.model], **cfg.model_config, "in_channels": spec.in_channels}
@@ -112,12 +119,15 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
             print(f"stopping after {epoch} epochs: the {cfg.max_minutes} min budget is spent", file=sys.stderr)
             break
         t0 = time.perf_counter()
-        order = np.random.default_rng([cfg.seed, epoch]).integers(0, len(train_set), steps_per_epoch * cfg.batch)
+        rng = np.random.default_rng([cfg.seed, epoch])
+        order = rng.integers(0, len(train_set), steps_per_epoch * cfg.batch)
+        sym = rng.integers(0, 8, len(order)) if cfg.augment else None
         model.train()
         losses = []
         for step in tqdm(range(steps_per_epoch), desc=f"epoch {epoch + 1}/{cfg.epochs}", disable=not progress,
                          leave=False):
-            x, y = train_set.batch(order[step * cfg.batch:(step + 1) * cfg.batch])
+            chunk = slice(step * cfg.batch, (step + 1) * cfg.batch)
+            x, y = train_set.batch(order[chunk], None if sym is None else sym[chunk])
             loss = relative_l2(model(x), y)
             if not torch.isfinite(loss):
                 raise TrainingDiverged(f"loss became {loss.item()} in epoch {epoch + 1}, step {step}; "
@@ -189,9 +199,11 @@ def _card(cfg: TrainConfig, model, spec, train_splits: list, test_splits: list, 
                     "digests": [s.attrs["digest"] for s in train_splits],
                     "n_train": sum(len(s.scenarios) for s in train_splits),
                     "n_test": sum(len(s.scenarios) for s in test_splits),
+                    "unconverged_used": sum(int((~s.converged).sum()) for s in train_splits + test_splits),
                     "grid": list(train_splits[0].config.grid)},
         "training": {"epochs": cfg.epochs, "slices_per_epoch": cfg.slices_per_epoch, "batch": cfg.batch,
                      "lr": cfg.lr, "weight_decay": cfg.weight_decay, "seed": cfg.seed, "loss": "relative L2",
+                     "augment": "D4 symmetries (slices.symmetry)" if cfg.augment else None,
                      "threads": torch.get_num_threads()},
         "epsilon": None,
         "command": command or " ".join(shlex.quote(a) for a in ["hjrno", *sys.argv[1:]]),

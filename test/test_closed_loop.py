@@ -157,8 +157,10 @@ def test_calibrate_refuses_too_few_draws(trained):
     assert run.returncode == 2 and "need at least" in run.stderr and len(run.stderr.strip().splitlines()) == 1
 
 
-def test_held_out_halves_and_unconverged_worlds(ci_data):
+def test_held_out_halves_and_unconverged_worlds(ci_data, trained):
     import h5py
+
+    _, stem = trained
 
     from hjrno_ros import held_out
 
@@ -174,6 +176,10 @@ def test_held_out_halves_and_unconverged_worlds(ci_data):
         with pytest.raises(ValueError, match="at least 2 held-out scenarios"):  # one converged left
             held_out.load([ci_data], "all")
         assert len(held_out.load([ci_data], "all", unconverged=True)) == 2
+        with pytest.raises(ValueError):  # the calibration half lost its only scenario
+            calibration.calibrate_model(stem, [ci_data], 0.05, 0.05, 2000, write=False)
+        entry = calibration.calibrate_model(stem, [ci_data], 0.05, 0.05, 2000, write=False, unconverged=True)
+        assert entry["unconverged_allowed"] and len(entry["calibration_scenarios"]) == 1
     finally:
         with h5py.File(ci_data / "test.h5", "r+") as f:
             f["converged"][...] = flags

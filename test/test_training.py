@@ -1,5 +1,6 @@
 """Training, checkpoints and evaluation on the tiny `ci` dataset: real solves, real torch, real files."""
 
+import dataclasses
 import json
 import pickle
 
@@ -10,7 +11,11 @@ from conftest import SMALL
 from scipy.interpolate import RegularGridInterpolator
 
 from hjrno_ros import checkpoint, dataset, evaluation
-from hjrno_ros.slices import SliceSet, spec_for
+from hjrno_ros.dynamics import DynamicDubinsCar
+from hjrno_ros.geometry import Polygon
+from hjrno_ros.grids import car_grid
+from hjrno_ros.slices import SliceSet, spec_for, symmetry
+from hjrno_ros.solver import solve
 from hjrno_ros.training import TrainConfig, TrainingDiverged, train
 from hjrno_ros.value_function import LearnedValueFunction
 
@@ -24,6 +29,48 @@ def test_inputs_follow_the_slice_convention(ci_data):
     np.testing.assert_allclose(x[1, 0].numpy(), split.target[0, :, :, iv, it] / spec.value_scale, rtol=1e-6)
     np.testing.assert_allclose(y[1, 0].numpy(), split.value[0, :, :, iv, it] / spec.value_scale, rtol=1e-6)
     assert x[1, 2, 0, 0].item() == pytest.approx(np.cos(split.grid.axis(3)[it]), abs=1e-6)
+
+
+TRIANGLE = np.array([(0.5, 0.2), (2.5, 0.8), (1.0, 2.0)])  # off-centre, no symmetry of its own
+
+
+def _solve_polygon(grid, vertices):
+    target = Polygon(tuple(map(tuple, vertices))).sdf(grid.states()[..., :2]).astype(np.float32)
+    return solve(DynamicDubinsCar(), grid, target, max_horizon=3.0, tolerance=1e-9)[0]
+
+
+@pytest.mark.parametrize("k, image", [(1, lambda p: np.column_stack([-p[:, 1], p[:, 0]])),  # quarter turn
+                                      (4, lambda p: p * [1.0, -1.0])])  # reflection y -> -y
+def test_symmetry_maps_a_solve_onto_the_solve_of_the_mapped_obstacle(k, image):
+    """The augmentation's generators checked against real solves: V of the turned (mirrored) triangle
+    equals the turned (mirrored) V of the triangle, slice by slice, with θ mapped too."""
+    grid = car_grid((20, 20, 5, 8))
+    value, mapped = _solve_polygon(grid, TRIANGLE), _solve_polygon(grid, image(TRIANGLE))
+    thetas = grid.axis(3)
+    for iv in range(grid.shape[2]):
+        slices, theta = symmetry(value[:, :, iv].transpose(2, 0, 1), thetas, np.full(len(thetas), k))
+        index = np.round((theta + np.pi) / grid.spacings[3]).astype(int) % grid.shape[3]
+        np.testing.assert_allclose(slices, mapped[:, :, iv].transpose(2, 0, 1)[index], atol=2e-4)
+    assert np.abs(value - mapped).max() > 0.5  # the obstacle really moved
+
+
+def test_symmetry_group_and_augmented_training(ci_data, tmp_path):
+    rng = np.random.default_rng(0)
+    images, theta = rng.normal(size=(8, 6, 6)), rng.uniform(-np.pi, np.pi, 8)
+    k = np.arange(8)
+    assert len({o.tobytes() for o in symmetry(np.repeat(images[:1], 8, 0), theta, k)[0]}) == 8  # 8 elements
+    inverse = np.where(k >= 4, k, (4 - k) % 4)  # reflections undo themselves, quarter turns by turning back
+    back, theta_back = symmetry(*symmetry(images, theta, k), inverse)
+    np.testing.assert_allclose(back, images)
+    np.testing.assert_allclose(np.cos(theta_back - theta), 1.0)
+    cfg = TrainConfig(data=str(ci_data), model_config=SMALL, epochs=1, slices_per_epoch=64, augment=True,
+                      out=str(tmp_path / "aug"))
+    train(cfg, progress=False)
+    assert checkpoint.load_card(tmp_path / "aug")["training"]["augment"].startswith("D4")
+    split = dataset.load_split(ci_data / "train.h5")
+    narrow = SliceSet(dataclasses.replace(split, grid=split.grid.with_shape((20, 16, 5, 8))), spec_for(split))
+    with pytest.raises(ValueError, match="square"):
+        narrow.check_symmetric()
 
 
 def test_training_reduces_the_loss_and_writes_a_card(trained):
@@ -101,6 +148,28 @@ def test_evaluation_reports_paper_columns(trained, ci_data, tmp_path):
     table = evaluation.record(row, tmp_path)
     assert "test_rel_l2" in table.read_text()
     assert list((tmp_path / "fig").glob("*.png"))
+
+
+def test_unconverged_samples_only_on_request(trained, ci_data, tmp_path):
+    import shutil
+
+    import h5py
+
+    data = tmp_path / "ci"
+    shutil.copytree(ci_data, data)
+    with h5py.File(data / "test.h5", "r+") as f:  # flag every test sample as not converged
+        f["converged"][...] = False
+        n_test = len(f["converged"])
+    cfg = TrainConfig(data=str(data), model_config=SMALL, epochs=1, slices_per_epoch=64, out=str(tmp_path / "m"))
+    with pytest.raises(ValueError, match="no converged samples.*--allow-unconverged"):
+        train(cfg, progress=False)
+    train(TrainConfig(**{**cfg.__dict__, "allow_unconverged": True}), progress=False)
+    assert checkpoint.load_card(tmp_path / "m")["dataset"]["unconverged_used"] == n_test
+    _, out = trained
+    with pytest.raises(ValueError, match="no converged test samples"):
+        evaluation.evaluate(out, data)
+    row = evaluation.evaluate(out, data, unconverged=True)[0]
+    assert row["n_train/n_test"].endswith(f"/{n_test} ({n_test} unconverged)")
 
 
 def test_metrics_are_right_on_known_tables():
