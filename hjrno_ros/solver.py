@@ -59,16 +59,42 @@ class SolveReport:
         )
 
 
+_RK_ORDER = {"low": 1, "medium": 2, "high": 3, "very_high": 3}  # as hj.SolverSettings.with_accuracy
+_euler = hj.time_integration.euler_step.__wrapped__
+
+
+def _tvd_runge_kutta(order: int) -> Callable:
+    """``hj_reachability``'s TVD Runge-Kutta step of ``order`` (same arithmetic) over its *un-jitted*
+    Euler step.  hj's own jits take the dynamics as a static argument, and ours holds traced
+    parameters: tracers in static arguments are what JAX warns leads to leaked-tracer errors
+    (jax-ml/jax#2884), so :func:`_step` traces hj's functions inline instead."""
+
+    def integrate(settings, dynamics, grid, time, values, target_time):
+        time_1, values_1 = _euler(settings, dynamics, grid, time, values, max_time_step=target_time - time)
+        if order == 1:
+            return time_1, settings.value_postprocessor(time_1, values_1)
+        time_step = time_1 - time
+        _, values_2 = _euler(settings, dynamics, grid, time_1, values_1, time_step)
+        if order == 2:
+            return time_1, settings.value_postprocessor(time_1, (values + values_2) / 2)
+        values_0_5 = (3 / 4) * values + (1 / 4) * values_2
+        _, values_1_5 = _euler(settings, dynamics, grid, time + time_step / 2, values_0_5, time_step)
+        return time_1, settings.value_postprocessor(time_1, (1 / 3) * values + (2 / 3) * values_1_5)
+
+    return integrate
+
+
 @functools.cache
 def _settings(accuracy: str) -> hj.SolverSettings:
-    return hj.SolverSettings.with_accuracy(accuracy, hamiltonian_postprocessor=hj.solver.backwards_reachable_tube)
+    settings = hj.SolverSettings.with_accuracy(accuracy, hamiltonian_postprocessor=hj.solver.backwards_reachable_tube)
+    return settings.replace(time_integrator=_tvd_runge_kutta(_RK_ORDER[accuracy]))
 
 
 @functools.partial(jax.jit, static_argnames=("dynamics_type", "param_type", "accuracy"))
 def _step(dynamics_type, param_type, accuracy, param_values, grid, t0, values, t1):
     """One backward chunk t0 → t1 (< t0); the dynamics' parameters are traced, not static."""
     dynamics = dynamics_type(param_type(*param_values))
-    return hj.step(_settings(accuracy), dynamics, grid, t0, values, t1, progress_bar=False)
+    return hj.step.__wrapped__(_settings(accuracy), dynamics, grid, t0, values, t1, progress_bar=False)
 
 
 def interior_mask(grid: GridSpec, open_axes: tuple[int, ...], edge_cells: int = 2) -> np.ndarray:

@@ -114,6 +114,22 @@ def test_non_convergence_is_reported():
     assert "NOT converged" in report.summary()
 
 
+@pytest.mark.parametrize("accuracy", ["low", "medium", "high"])
+def test_step_matches_hj_reachability_step(accuracy):
+    """Our compiled step (traced parameters, hj's integrators inlined) is hj.step's arithmetic."""
+    import dataclasses
+
+    import hj_reachability as hj
+
+    grid, params = car_grid((20, 20, 5, 8)), CarParams(a_max=0.7, kappa_max=1.3)
+    values = Disk((1, 0), 1.0).sdf(grid.states()[..., :2]).astype(np.float32)
+    settings = hj.SolverSettings.with_accuracy(accuracy, hamiltonian_postprocessor=hj.solver.backwards_reachable_tube)
+    theirs = hj.step(settings, DynamicDubinsCar(params), grid.to_hj(), 0.0, values, -0.5, progress_bar=False)
+    ours = _step(DynamicDubinsCar, CarParams, accuracy, dataclasses.astuple(params), grid.to_hj(), 0.0, values, -0.5)
+    assert np.abs(np.asarray(theirs) - values).max() > 0.01  # the step did something
+    np.testing.assert_allclose(np.asarray(ours), np.asarray(theirs), atol=1e-6)
+
+
 def test_new_obstacles_and_parameters_reuse_the_compiled_step():
     grid = car_grid((24, 24, 7, 12))
     xy = grid.states()[..., :2]
