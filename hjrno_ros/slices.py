@@ -14,6 +14,8 @@ import dataclasses
 import numpy as np
 import torch
 
+from .grids import wrap_angle
+
 
 @dataclasses.dataclass(frozen=True)
 class InputSpec:
@@ -87,7 +89,7 @@ def symmetry(images: np.ndarray, theta: np.ndarray, k: np.ndarray) -> tuple[np.n
         image = images[b, :, ::-1] if kb >= 4 else images[b]
         out[b] = np.rot90(image, kb % 4)
     turned = np.where(np.asarray(k) >= 4, -theta, theta) + (np.asarray(k) % 4) * (np.pi / 2)
-    return out, (turned + np.pi) % (2 * np.pi) - np.pi
+    return out, wrap_angle(turned)
 
 
 class SliceSet:

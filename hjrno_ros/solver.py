@@ -59,8 +59,10 @@ class SolveReport:
         )
 
 
-_RK_ORDER = {"low": 1, "medium": 2, "high": 3, "very_high": 3}  # as hj.SolverSettings.with_accuracy
 _euler = hj.time_integration.euler_step.__wrapped__
+_RK_ORDER = {hj.time_integration.first_order_total_variation_diminishing_runge_kutta: 1,
+             hj.time_integration.second_order_total_variation_diminishing_runge_kutta: 2,
+             hj.time_integration.third_order_total_variation_diminishing_runge_kutta: 3}
 
 
 def _tvd_runge_kutta(order: int) -> Callable:
@@ -87,7 +89,7 @@ def _tvd_runge_kutta(order: int) -> Callable:
 @functools.cache
 def _settings(accuracy: str) -> hj.SolverSettings:
     settings = hj.SolverSettings.with_accuracy(accuracy, hamiltonian_postprocessor=hj.solver.backwards_reachable_tube)
-    return settings.replace(time_integrator=_tvd_runge_kutta(_RK_ORDER[accuracy]))
+    return settings.replace(time_integrator=_tvd_runge_kutta(_RK_ORDER[settings.time_integrator]))
 
 
 @functools.partial(jax.jit, static_argnames=("dynamics_type", "param_type", "accuracy"))
