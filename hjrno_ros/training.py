@@ -88,7 +88,10 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
     folders = [Path(d) for d in cfg.data.split(",") if d]
     converged_only = not cfg.allow_unconverged
     train_splits = [load_split(d / "train.h5", converged_only=converged_only) for d in folders]
-    test_splits = [load_split(d / "test.h5", converged_only=converged_only) for d in folders]
+    test_splits = [load_split(d / "test.h5", converged_only=converged_only)
+                   for d, part in zip(folders, train_splits, strict=True) if part.config.n_test]  # n_test 0: train only
+    if not test_splits:
+        raise ValueError("no test split among the datasets: at least one folder needs n_test > 0")
     for split in train_splits + test_splits:
         if not split.scenarios:
             raise ValueError(f"{split.config.name} {split.attrs['split']}: no converged samples to train or test on "

@@ -172,6 +172,22 @@ def test_unconverged_samples_only_on_request(trained, ci_data, tmp_path):
     assert row["n_train/n_test"].endswith(f"/{n_test} ({n_test} unconverged)")
 
 
+def test_a_train_only_folder_joins_a_split_with_a_test_set(ci_data, tmp_path):
+    """More scenarios from another seed with n_test 0 (no test.h5) add to the training set."""
+    extra = tmp_path / "extra"
+    base = dataset.load_config("ci")
+    config = dataclasses.replace(base, n_train=1, n_test=0, seed=base.seed + 100)
+    dataset.generate(config, extra, progress=False)
+    assert not (extra / "test.h5").exists()
+    cfg = TrainConfig(data=f"{ci_data},{extra}", model_config=SMALL, epochs=1, slices_per_epoch=64,
+                      out=str(tmp_path / "m"))
+    train(cfg, progress=False)
+    card = checkpoint.load_card(tmp_path / "m")["dataset"]
+    assert (card["n_train"], card["n_test"]) == (base.n_train + 1, base.n_test)
+    with pytest.raises(ValueError, match="no test split among the datasets"):
+        train(TrainConfig(**{**cfg.__dict__, "data": str(extra)}), progress=False)
+
+
 def test_metrics_are_right_on_known_tables():
     truth = np.array([-1.0, -1.0, 1.0, 1.0])
     m = evaluation.table_metrics(np.array([-1.0, 1.0, 1.0, -1.0]), truth)
