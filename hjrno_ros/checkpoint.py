@@ -64,6 +64,11 @@ def load_card(stem: str | Path) -> dict:
     return card
 
 
+def test_folders(card: dict) -> list[str]:
+    """The dataset folders of a card that hold a test split (cards before ``test_folders``: all)."""
+    return list(card["dataset"].get("test_folders", card["dataset"]["folders"]))
+
+
 def update_card(stem: str | Path, changes: dict) -> Path:
     """Merge ``changes`` into an existing model card (atomically; the weights are untouched)."""
     return _write_card(paths(stem)[1], {**load_card(stem), **changes})

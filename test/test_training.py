@@ -184,6 +184,8 @@ def test_a_train_only_folder_joins_a_split_with_a_test_set(ci_data, tmp_path):
     train(cfg, progress=False)
     card = checkpoint.load_card(tmp_path / "m")["dataset"]
     assert (card["n_train"], card["n_test"]) == (base.n_train + 1, base.n_test)
+    assert card["test_folders"] == [str(ci_data)]  # evaluate/calibrate/simulate default to these
+    assert [r["n_train/n_test"] for r in evaluation.evaluate(tmp_path / "m")] == [f"{base.n_train}/{base.n_test}"]
     with pytest.raises(ValueError, match="no test split among the datasets"):
         train(TrainConfig(**{**cfg.__dict__, "data": str(extra)}), progress=False)
 
