@@ -64,7 +64,7 @@ def load_card(stem: str | Path) -> dict:
     return card
 
 
-def test_folders(card: dict) -> list[str]:
+def folders_with_test_split(card: dict) -> list[str]:
     """The dataset folders of a card that hold a test split (cards before ``test_folders``: all)."""
     return list(card["dataset"].get("test_folders", card["dataset"]["folders"]))
 

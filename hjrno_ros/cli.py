@@ -148,7 +148,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from . import checkpoint, evaluation
 
     if args.superres:
-        data = args.data or checkpoint.test_folders(checkpoint.load_card(args.model.split(",")[0]))[0]
+        data = args.data or checkpoint.folders_with_test_split(checkpoint.load_card(args.model.split(",")[0]))[0]
         table = evaluation.superresolution(args.model.split(","), data, args.superres, args.samples, args.out)
         print(Path(table).read_text())
         return 0
@@ -171,7 +171,7 @@ def _models(items: list[str] | None) -> dict[str, str]:
 def _data_folders(data: str | None, stem: str) -> list[str]:
     from . import checkpoint
 
-    return data.split(",") if data else checkpoint.test_folders(checkpoint.load_card(stem))
+    return data.split(",") if data else checkpoint.folders_with_test_split(checkpoint.load_card(stem))
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:

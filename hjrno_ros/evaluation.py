@@ -88,7 +88,7 @@ def evaluate(stem: str | Path, data: str | Path | None = None, train_limit: int 
     ``figures``, also a ground truth | prediction | error PNG per folder there.  Samples whose solve
     missed the tolerance are left out unless ``unconverged``."""
     model, card = checkpoint.load_model(stem)
-    folders = [Path(d) for d in (str(data).split(",") if data else checkpoint.test_folders(card))]
+    folders = [Path(d) for d in (str(data).split(",") if data else checkpoint.folders_with_test_split(card))]
     return [_evaluate_folder(model, card, Path(stem), folder, train_limit, figures, unconverged) for folder in folders]
 
 
