@@ -88,8 +88,8 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
     folders = [Path(d) for d in cfg.data.split(",") if d]
     converged_only = not cfg.allow_unconverged
     train_splits = [load_split(d / "train.h5", converged_only=converged_only) for d in folders]
-    test_splits = [load_split(d / "test.h5", converged_only=converged_only)
-                   for d, part in zip(folders, train_splits, strict=True) if part.config.n_test]  # n_test 0: train only
+    tested = [d for d, part in zip(folders, train_splits, strict=True) if part.config.n_test]  # n_test 0: train only
+    test_splits = [load_split(d / "test.h5", converged_only=converged_only) for d in tested]
     if not test_splits:
         raise ValueError("no test split among the datasets: at least one folder needs n_test > 0")
     for split in train_splits + test_splits:
@@ -111,7 +111,7 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
     steps_per_epoch = max(1, cfg.slices_per_epoch // cfg.batch)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=cfg.lr, total_steps=cfg.epochs * steps_per_epoch,
                                                 pct_start=0.1)
-    card = _card(cfg, model, spec, folders, train_splits, test_splits, command)
+    card = _card(cfg, model, spec, folders, tested, train_splits, test_splits, command)
     start_epoch, history = _resume(cfg, model, opt, sched, steps_per_epoch)
     start = time.perf_counter()
     spent_before = sum(h["wall_s"] for h in history)
@@ -186,8 +186,8 @@ def evaluate_slices(model, slice_set: SliceUnion, seed: int, n: int = 512, batch
     return float(sum(scores) / len(index))
 
 
-def _card(cfg: TrainConfig, model, spec, folders: list[Path], train_splits: list, test_splits: list,
-          command: str | None) -> dict:
+def _card(cfg: TrainConfig, model, spec, folders: list[Path], tested: list[Path], train_splits: list,
+          test_splits: list, command: str | None) -> dict:
     grid = train_splits[0].grid
     return {
         "kind": cfg.model,
@@ -200,7 +200,7 @@ def _card(cfg: TrainConfig, model, spec, folders: list[Path], train_splits: list
         "dataset": {"experiment": "+".join(s.config.name for s in train_splits),
                     "families": [s.config.family for s in train_splits],
                     "folders": [str(d) for d in folders],
-                    "test_folders": [str(d) for d, s in zip(folders, train_splits, strict=True) if s.config.n_test],
+                    "test_folders": [str(d) for d in tested],
                     "digests": [s.attrs["digest"] for s in train_splits],
                     "n_train": sum(len(s.scenarios) for s in train_splits),
                     "n_test": sum(len(s.scenarios) for s in test_splits),
