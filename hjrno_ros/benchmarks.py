@@ -102,12 +102,14 @@ def _markdown(title: str, rows: list[dict], note: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def run(what: str, out: Path, quick: bool = False, only: tuple[str, ...] = ()) -> int:
+def run(what: str, out: Path, quick: bool = False, only: tuple[str, ...] = (), model: str | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     if what == "node":
         from . import node_bench
 
-        return node_bench.run(out, seconds=10.0 if quick else 30.0)
+        return node_bench.run(out, seconds=10.0 if quick else 30.0, model=Path(model) if model else None)
+    if model:
+        raise ValueError("--model is for the node benchmark only")
     if what == "dataset":
         samples = 1 if quick else 3
         families = only or (DATASET_FAMILIES[:1] if quick else DATASET_FAMILIES)

@@ -870,6 +870,7 @@ class BrtNode(Node):
             "counts": {k: counts[k] for k in ("commands", "interventions", "stops", "inferences", "inference_errors")},
             "value_grid": val.grid_info if val else None,
             "model": str(self._model_stem),
+            "symmetry_average": bool(self._card.get("symmetry_average", False)),
         }
 
     def _filter_ms(self) -> dict[str, float] | None:

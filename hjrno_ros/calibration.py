@@ -124,19 +124,24 @@ def error_rates(pred: list[np.ndarray], truth: list[np.ndarray], epsilon: float)
 
 
 def calibrate_model(stem, folders: list, alpha: float, beta: float, n: int, seed: int = 0,
-                    margin: float = DEFAULT_MARGIN, write: bool = True, unconverged: bool = False) -> dict:
+                    margin: float = DEFAULT_MARGIN, write: bool = True, unconverged: bool = False,
+                    average: bool | None = None) -> dict:
     """Calibrate ε on the first half of the test splits, measure on the second, write it into the card
-    (``unconverged``: also use scenarios whose solve missed the tolerance; recorded in the card)."""
+    (``unconverged``: also use scenarios whose solve missed the tolerance; recorded in the card).
+    ``average`` (None: the card's setting) calibrates the symmetry-averaged model or the plain one and
+    records that choice in the card with ε, since ε only holds for the predictions it was measured on."""
     from . import checkpoint, held_out
 
     calib, fresh = (held_out.load(folders, part, unconverged) for part in ("calibration", "fresh"))
-    pred = held_out.predict(stem, calib + fresh)
+    averaged = bool(checkpoint.load_card(stem).get("symmetry_average", False) if average is None else average)
+    pred = held_out.predict(stem, calib + fresh, averaged)
     result = calibrate(pred[:len(calib)], [s.value for s in calib], alpha, beta, n, seed, margin)
     pred_fresh, truth_fresh = pred[len(calib):], [s.value for s in fresh]
     entry = {**result.as_dict(), "seed": seed, "data": [str(f) for f in folders], "unconverged_allowed": unconverged,
+             "symmetry_average": averaged,
              "calibration_scenarios": [s.name for s in calib], "fresh_scenarios": [s.name for s in fresh],
              "fresh_before": error_rates(pred_fresh, truth_fresh, 0.0),
              "fresh_after": error_rates(pred_fresh, truth_fresh, result.epsilon)}
     if write:
-        checkpoint.update_card(stem, {"epsilon": result.epsilon, "calibration": entry})
+        checkpoint.update_card(stem, {"epsilon": result.epsilon, "symmetry_average": averaged, "calibration": entry})
     return entry

@@ -84,8 +84,12 @@ def load_tensors(stem: str | Path) -> dict[str, torch.Tensor]:
         raise ValueError(f"{weights} is not a readable safetensors file ({str(err).splitlines()[0]})") from None
 
 
-def load_model(stem: str | Path, device: str | torch.device = "cpu") -> tuple[torch.nn.Module, dict]:
-    """(model in eval mode, card) from a safetensors + JSON pair; ValueError on anything else."""
+def load_model(stem: str | Path, device: str | torch.device = "cpu", average: bool | None = None
+               ) -> tuple[torch.nn.Module, dict]:
+    """(model in eval mode, card) from a safetensors + JSON pair; ValueError on anything else.
+
+    ``average``: wrap the model in :class:`~hjrno_ros.operators.average.SymmetryAverage`
+    (default: as the card's ``symmetry_average`` says, which ``hjrno calibrate`` records)."""
     from .operators import build_model
 
     card = load_card(stem)
@@ -95,4 +99,20 @@ def load_model(stem: str | Path, device: str | torch.device = "cpu") -> tuple[to
     if set(tensors) != set(expected) or any(tensors[k].shape != expected[k].shape for k in expected):
         raise ValueError(f"{paths(stem)[0]} does not match the architecture in its model card")
     model.load_state_dict(tensors)
+    if card.get("symmetry_average", False) if average is None else average:
+        model = symmetry_averaged(model, card, paths(stem)[1])
     return model.to(device).eval(), card
+
+
+def symmetry_averaged(model: torch.nn.Module, card: dict, source: Path) -> torch.nn.Module:
+    """``model`` averaged over the square's symmetries; ValueError unless it is a car model on a square window."""
+    from .operators.average import SymmetryAverage
+
+    channels = card["inputs"].get("channels", [])
+    if "cos_theta" not in channels:
+        raise ValueError(f"{source}: symmetry averaging is for car models, this one is {card['inputs'].get('kind')!r}")
+    lo, hi, shape = (card["grid"][k] for k in ("lo", "hi", "shape"))
+    if shape[0] != shape[1] or abs((hi[0] - lo[0]) - (hi[1] - lo[1])) > 1e-9:
+        raise ValueError(f"{source}: symmetry averaging needs a square x-y window, this one has {shape[0]} x "
+                         f"{shape[1]} nodes over {hi[0] - lo[0]:g} m x {hi[1] - lo[1]:g} m")
+    return SymmetryAverage(model, channels.index("cos_theta"), channels.index("sin_theta"))

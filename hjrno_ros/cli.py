@@ -180,17 +180,18 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
     folders = _data_folders(args.data, args.model)
     entry = calibrate_model(args.model, folders, args.alpha, args.beta, args.draws, args.seed, args.margin,
-                            write=not args.dry_run, unconverged=args.allow_unconverged)
+                            write=not args.dry_run, unconverged=args.allow_unconverged,
+                            average=args.symmetry_average)
     before, after = entry["fresh_before"], entry["fresh_after"]
     print(f"epsilon = {entry['epsilon']:.4f} m (margin {entry['margin']:g} m, alpha {args.alpha}, beta {args.beta}, "
           f"n {entry['n']}, rank {entry['rank']}, {entry['scenarios']} calibration scenarios from "
-          f"{', '.join(folders)})")
+          f"{', '.join(folders)}; {'symmetry-averaged' if entry['symmetry_average'] else 'plain'} model)")
     print(f"P(V_gt<=0 | V_pred>eps) upper bound {entry['precision_bound']:.2e} (estimate "
           f"{entry['precision_estimate']:.2e})")
     for name, r in (("before (eps=0)", before), ("after", after)):
         print(f"fresh split {name}: miss rate {r['miss_rate']:.4f}, false-safe rate {r['false_safe_rate']:.2e}, "
               f"conservative rate {r['conservative_rate']:.4f}")
-    print("dry run: card unchanged" if args.dry_run else f"wrote epsilon into {args.model}.json")
+    print("dry run: card unchanged" if args.dry_run else f"wrote epsilon and symmetry_average into {args.model}.json")
     return 0
 
 
@@ -230,7 +231,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from . import benchmarks
 
     only = tuple(args.only.split(",")) if args.only else ()
-    return benchmarks.run(args.what, Path(args.out), quick=args.quick, only=only)
+    return benchmarks.run(args.what, Path(args.out), quick=args.quick, only=only, model=args.model)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -323,6 +324,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dry-run", action="store_true", help="report only; leave the card as it is")
     p.add_argument("--allow-unconverged", action="store_true", help="also use test scenarios whose solve did not "
                    "meet the convergence tolerance (their ground truth is approximate)")
+    p.add_argument("--symmetry-average", action=argparse.BooleanOptionalAction, default=None,
+                   help="average the model over the window's 8 symmetries (exactly equivariant, 8x inference "
+                   "cost) or not; recorded in the card with epsilon, so evaluate, simulate and the node use it "
+                   "(default: the card's setting)")
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("simulate", help="closed-loop episodes: collisions and interventions per safety filter")
@@ -360,6 +365,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="benchmarks/results", help="results folder")
     p.add_argument("--quick", action="store_true", help="smallest case only (smoke run)")
     p.add_argument("--only", default=None, help="dataset bench: comma-separated families (others keep old rows)")
+    p.add_argument("--model", default=None, help="node bench: model stem (default: the bundled model)")
     p.set_defaults(func=cmd_bench)
     return parser
 

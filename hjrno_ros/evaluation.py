@@ -109,7 +109,7 @@ def _evaluate_folder(model, card: dict, stem: Path, data: Path, train_limit: int
     weights, _ = checkpoint.paths(stem)
     return {
         "experiment": test.config.name,
-        "model": f"{card['kind']} ({checkpoint.paths(stem)[0].stem})",
+        "model": f"{card['kind']} ({checkpoint.paths(stem)[0].stem}{', D4-averaged' if averaged(model) else ''})",
         "grid": "x".join(map(str, test.grid.shape)),
         "n_train/n_test": f"{len(train.scenarios)}/{len(test.scenarios)}"
                           + (f" ({flagged} unconverged)" if flagged else ""),
@@ -128,6 +128,13 @@ def _evaluate_folder(model, card: dict, stem: Path, data: Path, train_limit: int
         "speedup": round(1e3 * solve_s / infer),
         "train_samples_scored": tr["n"],
     }
+
+
+def averaged(model) -> bool:
+    """Whether ``model`` is symmetry-averaged (8 forward passes per prediction)."""
+    from .operators.average import SymmetryAverage
+
+    return isinstance(model, SymmetryAverage)
 
 
 def record(row: dict, out: str | Path) -> Path:

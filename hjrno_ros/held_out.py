@@ -48,15 +48,16 @@ def load(folders: list[str | Path], part: str = "fresh", unconverged: bool = Fal
     return out
 
 
-def predict(stem: str | Path, solved: list[Solved]) -> list[np.ndarray]:
-    """The model's V on each scenario's whole grid (metres), min'd with l as the node does."""
+def predict(stem: str | Path, solved: list[Solved], average: bool | None = None) -> list[np.ndarray]:
+    """The model's V on each scenario's whole grid (metres), min'd with l as the node does
+    (``average``: symmetry-averaged or not; default: as the card says)."""
     import torch
 
     from . import checkpoint
     from .evaluation import predict_table, sample_params
     from .slices import InputSpec
 
-    model, card = checkpoint.load_model(stem)
+    model, card = checkpoint.load_model(stem, average=average)
     spec = InputSpec.from_dict(card["inputs"])
     if spec.kind != "car":
         raise ValueError(f"{stem}: a car model is needed, this one is {spec.kind!r}")

@@ -1,8 +1,10 @@
 """Shared fixtures: the tiny ``ci`` dataset (real solves) and a tiny FNO trained on it (real torch)."""
 
+from pathlib import Path
+
 import pytest
 
-from hjrno_ros import dataset
+from hjrno_ros import checkpoint, dataset
 from hjrno_ros.training import TrainConfig, train
 
 SMALL = {"width": 8, "modes": 4, "n_layers": 2}
@@ -22,3 +24,10 @@ def trained(ci_data, tmp_path_factory):
                       batch=16, lr=3e-3, out=str(out))
     train(cfg, progress=False, command="test")
     return cfg, out
+
+
+def copy_model(stem, folder: Path) -> Path:
+    """A copy of a model (weights + card) as ``folder/model``, to change its card freely."""
+    for src in checkpoint.paths(stem):
+        (folder / ("model" + src.suffix)).write_bytes(src.read_bytes())
+    return folder / "model"

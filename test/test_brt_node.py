@@ -211,6 +211,7 @@ def test_far_from_obstacles_command_passes_unchanged(ros):
     out = driver.command(0.7, -0.3)
     assert out is not None and out.linear.x == 0.7 and out.angular.z == -0.3
     assert driver.status["value"] > driver.status["epsilon"]
+    assert driver.status["symmetry_average"] is False  # the test model's card does not ask for it
     grid, values = driver.grid, driver.values
     assert grid.header.frame_id == "map" and len(grid.data) == grid.info.width * grid.info.height
     dims = values.layout.dim

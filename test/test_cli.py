@@ -47,6 +47,12 @@ def test_bad_arguments_give_one_line_errors(tmp_path, args, message):
     assert not list(tmp_path.glob("*.h5"))
 
 
+def test_bench_model_is_for_the_node_benchmark_only(tmp_path):
+    out = hjrno("bench", "solver", "--model", "models/default", "--out", str(tmp_path))
+    assert out.returncode == 2 and "node benchmark only" in out.stderr and "Traceback" not in out.stderr
+    assert not list(tmp_path.iterdir())
+
+
 def test_corrupt_or_foreign_files_are_refused(tmp_path):
     truncated = tmp_path / "bad.h5"
     truncated.write_bytes(b"\x89HDF\r\n\x1a\n" + b"\0" * 100)

@@ -6,11 +6,13 @@ import sys
 
 import numpy as np
 import pytest
+from conftest import copy_model
 
-from hjrno_ros import calibration, checkpoint, closed_loop, problems
+from hjrno_ros import calibration, checkpoint, closed_loop, evaluation, held_out, problems
 from hjrno_ros.closed_loop import EpisodeSettings, World
 from hjrno_ros.dynamics import CarParams, car_f, car_optimal_control, car_worst_disturbance
 from hjrno_ros.geometry import Disk
+from hjrno_ros.operators.average import SymmetryAverage
 from hjrno_ros.safety_filter import FilterSettings, filter_batch, filter_command, minimal_change
 from hjrno_ros.solver import solve
 from hjrno_ros.stop_zone import StopZoneSettings, stop_zone_filter
@@ -124,9 +126,7 @@ def test_conformal_rank_and_calibrated_margin_cover_fresh_draws():
 
 def test_calibrate_and_simulate_commands(trained, tmp_path):
     _, stem = trained
-    local = tmp_path / "model"
-    for src in checkpoint.paths(stem):
-        (tmp_path / ("model" + src.suffix)).write_bytes(src.read_bytes())
+    local = copy_model(stem, tmp_path)
     weights_before = checkpoint.paths(local)[0].read_bytes()
     run = subprocess.run([*HJRNO, "calibrate", "--model", str(local), "--draws", "2000", "--alpha", "0.05"],
                          capture_output=True, text=True)
@@ -155,6 +155,36 @@ def test_calibrate_refuses_too_few_draws(trained):
     run = subprocess.run([*HJRNO, "calibrate", "--model", str(stem), "--draws", "50", "--alpha", "0.01",
                           "--dry-run"], capture_output=True, text=True)
     assert run.returncode == 2 and "need at least" in run.stderr and len(run.stderr.strip().splitlines()) == 1
+
+
+def test_calibrate_records_symmetry_averaging_in_the_card(trained, tmp_path):
+    """--symmetry-average calibrates the averaged model and records it with ε, so every later load
+    (evaluate, simulate, the node) predicts the way ε was measured; --no-symmetry-average undoes it."""
+    _, stem = trained
+    local = copy_model(stem, tmp_path)
+    folders = checkpoint.load_card(local)["dataset"]["folders"]
+    solved = held_out.load(folders, "all")
+    plain, mean = (held_out.predict(local, solved, average) for average in (False, True))
+    assert max(np.abs(p - m).max() for p, m in zip(plain, mean, strict=True)) > 1e-3
+    for flag, averaged in (("--symmetry-average", True), ("--no-symmetry-average", False)):
+        run = subprocess.run([*HJRNO, "calibrate", "--model", str(local), "--draws", "2000", "--alpha", "0.05", flag],
+                             capture_output=True, text=True)
+        assert run.returncode == 0, run.stderr
+        card = checkpoint.load_card(local)
+        assert card["symmetry_average"] is averaged and card["calibration"]["symmetry_average"] is averaged
+        assert card["epsilon"] == calibration.calibrate_model(local, folders, 0.05, 0.05, 2000, write=False,
+                                                              average=averaged)["epsilon"]
+        model, _ = checkpoint.load_model(local)
+        assert isinstance(model, SymmetryAverage) is averaged
+        assert evaluation.evaluate(local)[0]["model"].endswith("D4-averaged)") is averaged
+
+
+def test_symmetry_averaging_refuses_a_non_square_window(trained):
+    _, stem = trained
+    model, card = checkpoint.load_model(stem)
+    card["grid"]["hi"][1] *= 2
+    with pytest.raises(ValueError, match="square x-y window"):
+        checkpoint.symmetry_averaged(model, card, checkpoint.paths(stem)[1])
 
 
 def test_held_out_halves_and_unconverged_worlds(ci_data, trained):

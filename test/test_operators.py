@@ -2,11 +2,14 @@
 
 import json
 
+import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
 
 from hjrno_ros.operators import MODELS, build_model, count_parameters
+from hjrno_ros.operators.average import SymmetryAverage
+from hjrno_ros.slices import InputSpec, symmetry
 
 KINDS = sorted(MODELS)
 SMALL = {  # small configs keep the tests fast; defaults are exercised where it matters
@@ -179,3 +182,31 @@ def test_small_fno_overfits_a_fixed_batch(one_thread):
         opt.step()
         losses.append(loss.item())
     assert losses[-1] < 0.5 * losses[0], (losses[0], losses[-1])  # measured: 0.90 -> 0.012
+
+
+@pytest.mark.parametrize("kind", ["fno", "cnn"])
+def test_symmetry_average_is_equivariant_under_the_training_symmetries(kind):
+    """Transforming the input slice and heading as augmentation does (slices.symmetry) transforms the
+    averaged output the same way, exactly; the plain model is not equivariant, so this can fail."""
+    torch.manual_seed(0)
+    model = build_model(kind, in_channels=4, **SMALL[kind]).eval()
+    averaged = SymmetryAverage(model, cos_channel=2, sin_channel=3)
+    spec = InputSpec("car", 1.0)
+    v0 = window(12)[:, 0].numpy()
+    theta = np.array([0.7])
+    with torch.no_grad():
+        base = averaged(spec.inputs(v0, np.array([0.4]), theta)).numpy()[:, 0]
+        plain = model(spec.inputs(v0, np.array([0.4]), theta)).numpy()[:, 0]
+        for k in range(1, 8):
+            image, turned = symmetry(v0, theta, np.array([k]))
+            x = spec.inputs(np.ascontiguousarray(image), np.array([0.4]), turned)
+            expected, _ = symmetry(base, theta, np.array([k]))
+            np.testing.assert_allclose(averaged(x).numpy()[:, 0], expected, atol=1e-5)
+            not_expected, _ = symmetry(plain, theta, np.array([k]))
+            assert np.abs(model(x).numpy()[:, 0] - not_expected).max() > 1e-3
+
+
+def test_symmetry_average_refuses_a_non_square_grid():
+    averaged = SymmetryAverage(build_model("fno", in_channels=4, **SMALL["fno"]), 2, 3)
+    with pytest.raises(ValueError, match="square x-y grid"):
+        averaged(torch.zeros(1, 4, 12, 10))

@@ -7,7 +7,7 @@ import pickle
 import numpy as np
 import pytest
 import torch
-from conftest import SMALL
+from conftest import SMALL, copy_model
 from scipy.interpolate import RegularGridInterpolator
 
 from hjrno_ros import checkpoint, dataset, evaluation
@@ -210,6 +210,21 @@ def test_learned_value_function_gives_value_and_gradient(trained):
     assert value[0] <= v0_at_state + 1e-6  # V ≤ V0 by construction
     with pytest.raises(ValueError, match="finite"):
         vf.predict(np.full((20, 20), np.nan), np.zeros(1), np.zeros(1))
+
+
+def test_learned_value_function_follows_the_cards_symmetry_average(trained, tmp_path):
+    """With ``symmetry_average`` in the card, the node's core predicts with the averaged model: a map
+    turned a quarter about the window centre, heading turned with it, gives the turned prediction."""
+    _, out = trained
+    local = copy_model(out, tmp_path)
+    checkpoint.update_card(local, {"symmetry_average": True})
+    plain, averaged = LearnedValueFunction(out, device="cpu"), LearnedValueFunction(local, device="cpu")
+    xy = averaged.window_points((0.0, 0.0))
+    v0 = np.hypot(xy[..., 0] - 1.5, xy[..., 1] - 0.5) - 0.8
+    base = averaged.predict(v0, np.array([0.5]), np.array([0.3]))[0]
+    turned = averaged.predict(np.rot90(v0).copy(), np.array([0.5]), np.array([0.3 + np.pi / 2]))[0]
+    np.testing.assert_allclose(turned, np.rot90(base), atol=1e-5)
+    assert np.abs(plain.predict(v0, np.array([0.5]), np.array([0.3]))[0] - base).max() > 1e-3
 
 
 def test_parametric_diagonal_figure(tmp_path):
