@@ -67,12 +67,17 @@ def split_metrics(model, spec: InputSpec, split, limit: int | None = None) -> di
     return {k: float(np.mean([r[k] for r in rows])) for k in rows[0]} | {"n": n}
 
 
-@torch.no_grad()
 def inference_ms(model, spec: InputSpec, shape: tuple[int, int], repeats: int = 30) -> float:
     """Median wall time of one 2D slice (batch 1) through the model, ms."""
     x = spec.inputs(np.zeros((1, *shape), np.float32), np.zeros(1), np.zeros(1),
                     np.ones((1, len(spec.param_ranges)), np.float32) if spec.param_ranges else None)
-    for _ in range(3):
+    return median_ms(model, x, repeats)
+
+
+@torch.no_grad()
+def median_ms(model, x: torch.Tensor, repeats: int, warmup: int = 3) -> float:
+    """Median wall time of ``model(x)`` after ``warmup`` untimed calls, ms."""
+    for _ in range(warmup):
         model(x)
     times = []
     for _ in range(repeats):

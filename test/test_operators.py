@@ -210,3 +210,16 @@ def test_symmetry_average_refuses_a_non_square_grid():
     averaged = SymmetryAverage(build_model("fno", in_channels=4, **SMALL["fno"]), 2, 3)
     with pytest.raises(ValueError, match="square x-y grid"):
         averaged(torch.zeros(1, 4, 12, 10))
+
+
+@pytest.mark.parametrize("batch", [1, 3])
+def test_symmetry_average_stacked_passes_equal_one_pass_per_element(batch):
+    """Stacking the 8 transformed copies into shared forward passes changes speed, not the result."""
+    torch.manual_seed(0)
+    model = build_model("fno", in_channels=4, **SMALL["fno"]).eval()
+    x = torch.randn(batch, 4, 12, 12)
+    with torch.no_grad():
+        stacked = SymmetryAverage(model, 2, 3, max_stack=8)(x)
+        single = SymmetryAverage(model, 2, 3, max_stack=1)(x)
+    assert stacked.shape == (batch, 1, 12, 12)
+    torch.testing.assert_close(stacked, single, atol=1e-5, rtol=0)

@@ -4,7 +4,9 @@ The car's dynamics commute with the 8 symmetries of a square window (quarter tur
 centre, the reflection y → −y; headings move with them), see :func:`hjrno_ros.slices.symmetry`.
 A trained operator is only approximately equivariant; averaging its 8 predictions, each made on a
 transformed input and mapped back, gives an operator that is equivariant exactly and whose error
-is the mean of 8 partly independent errors.  Cost: 8 forward passes.
+is the mean of 8 partly independent errors.  Cost: 8 forward passes, stacked into batches of at
+most ``max_stack`` samples where the input is that small (benchmarks/symmetry_stacking.py
+measures the best size on CPU).
 
 Input layout as everywhere (DESIGN.md §2): [B, C, Nx, Ny], dim 2 is x, dim 3 is y; the heading
 enters as two constant channels (cos θ, sin θ) whose indices are given.
@@ -19,9 +21,10 @@ from torch import Tensor, nn
 class SymmetryAverage(nn.Module):
     """``model`` averaged over D4; element k (0..7) as in :func:`hjrno_ros.slices.symmetry`."""
 
-    def __init__(self, model: nn.Module, cos_channel: int, sin_channel: int) -> None:
+    def __init__(self, model: nn.Module, cos_channel: int, sin_channel: int, max_stack: int = 16) -> None:
         super().__init__()
         self.model, self.cos_channel, self.sin_channel = model, cos_channel, sin_channel
+        self.max_stack = max_stack
 
     def transform(self, x: Tensor, k: int) -> Tensor:
         """Element k applied to inputs: reflect y (k ≥ 4, θ → −θ), then k mod 4 quarter turns (θ + π/2 each)."""
@@ -43,4 +46,10 @@ class SymmetryAverage(nn.Module):
         """[B, C, N, N] -> [B, 1, N, N]; the x-y grid must be square (same nodes after a quarter turn)."""
         if x.ndim != 4 or x.shape[2] != x.shape[3]:
             raise ValueError(f"symmetry averaging needs a square x-y grid [B, C, N, N], got {tuple(x.shape)}")
-        return sum(self.restore(self.model(self.transform(x, k)), k) for k in range(8)) / 8.0
+        group = min(8, max(1, self.max_stack // x.shape[0]))  # group elements per forward pass
+        total = 0.0
+        for first in range(0, 8, group):
+            ks = range(first, min(first + group, 8))
+            outs = self.model(torch.cat([self.transform(x, k) for k in ks])).chunk(len(ks))
+            total = total + sum(self.restore(y, k) for k, y in zip(ks, outs, strict=True))
+        return total / 8.0
