@@ -13,7 +13,6 @@ import torch
 
 from hjrno_ros import benchmarks, checkpoint
 from hjrno_ros.evaluation import median_ms
-from hjrno_ros.operators.average import SymmetryAverage
 
 
 def main(stem: str = "models/default", batches=(1, 2, 4, 8, 16), stacks=(1, 8, 16, 32)) -> int:
@@ -24,16 +23,16 @@ def main(stem: str = "models/default", batches=(1, 2, 4, 8, 16), stacks=(1, 8, 1
         x = torch.randn(batch, len(card["inputs"]["channels"]), n, n)
         row = {"batch": batch}
         for stack in stacks:
-            timed = SymmetryAverage(averaged.model, averaged.cos_channel, averaged.sin_channel, max_stack=stack)
-            row[f"ms_max_stack_{stack}"] = round(median_ms(timed, x, repeats=max(10, 160 // batch)), 2)
+            averaged.max_stack = stack
+            row[f"ms_max_stack_{stack}"] = round(median_ms(averaged, x, repeats=max(10, 160 // batch)), 2)
         rows.append(row)
         print(row, flush=True)
-    note = (f"`benchmarks/symmetry_stacking.py` on {benchmarks._machine()}, {time.strftime('%Y-%m-%d')}, "
+    note = (f"`benchmarks/symmetry_stacking.py` on {benchmarks.machine()}, {time.strftime('%Y-%m-%d')}, "
             f"torch threads {torch.get_num_threads()}: median ms of one symmetry-averaged prediction of {stem} "
             f"on a batch of {n} × {n} slices; max_stack 1 = one forward pass per element, k = elements stacked "
             "while batch × elements ≤ k.")
-    return benchmarks._write(Path("benchmarks/results"), "symmetry_stacking", "Symmetry averaging: stacked passes",
-                             rows, note)
+    return benchmarks.write_table(Path("benchmarks/results"), "symmetry_stacking", "Symmetry averaging: stacked passes",
+                                 rows, note)
 
 
 if __name__ == "__main__":

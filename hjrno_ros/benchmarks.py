@@ -27,7 +27,7 @@ SOLVER_CASES = [
 ]
 
 
-def _machine() -> str:
+def machine() -> str:
     return f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
 
 
@@ -117,22 +117,22 @@ def run(what: str, out: Path, quick: bool = False, only: tuple[str, ...] = (), m
         if unknown:
             raise ValueError(f"unknown families {sorted(unknown)}; choose from {', '.join(DATASET_FAMILIES)}")
         rows = bench_dataset(out, samples, families)
-        note = (f"`hjrno bench dataset` on {_machine()}, {time.strftime('%Y-%m-%d')}, one solver process. "
+        note = (f"`hjrno bench dataset` on {machine()}, {time.strftime('%Y-%m-%d')}, one solver process. "
                 f"Measured: {samples} training sample(s) per family at its default config "
                 "(config/experiments/*.yaml), solved and stored; dataset_time_h and data_size_MB are that "
                 "per-sample cost times the paper's sample count (train + test), not a full run.")
-        return _write(out, "dataset_quick" if quick else "dataset", "Dataset benchmark", rows, note)
+        return write_table(out, "dataset_quick" if quick else "dataset", "Dataset benchmark", rows, note)
     if what != "solver":
         raise ValueError(f"unknown benchmark {what!r}")
     rows = bench_solver(out, quick)
-    note = (f"`hjrno bench solver` on {_machine()}, {time.strftime('%Y-%m-%d')}. JAX CPU, float32, accuracy high "
+    note = (f"`hjrno bench solver` on {machine()}, {time.strftime('%Y-%m-%d')}. JAX CPU, float32, accuracy high "
             "(WENO3 + RK3), converged when max |dV| per simulated second < 1e-3 (disk: over the interior; room "
             "and Air3D: over the band near V = 0). solve_wall_s includes JIT compilation; process_wall_s adds "
             "imports and start-up.")
-    return _write(out, "solver_quick" if quick else "solver", "Solver benchmark", rows, note)
+    return write_table(out, "solver_quick" if quick else "solver", "Solver benchmark", rows, note)
 
 
-def _write(out: Path, stem: str, title: str, rows: list[dict], note: str) -> int:
+def write_table(out: Path, stem: str, title: str, rows: list[dict], note: str) -> int:
     """Write the table; rows of an earlier run for other cases (first column) are kept."""
     old = out / f"{stem}.json"
     if old.exists():
@@ -141,6 +141,6 @@ def _write(out: Path, stem: str, title: str, rows: list[dict], note: str) -> int
         kept = [r for r in json.loads(old.read_text())["rows"] if r.get(key) not in fresh]
         rows = kept + rows
     (out / f"{stem}.md").write_text(_markdown(title, rows, note))
-    (out / f"{stem}.json").write_text(json.dumps({"machine": _machine(), "note": note, "rows": rows}, indent=1))
+    (out / f"{stem}.json").write_text(json.dumps({"machine": machine(), "note": note, "rows": rows}, indent=1))
     print(f"wrote {out / (stem + '.md')}")
     return 0
