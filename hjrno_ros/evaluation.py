@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import time
 from pathlib import Path
 
@@ -59,12 +60,17 @@ def table_metrics(pred: np.ndarray, truth: np.ndarray) -> dict:
 
 
 def split_metrics(model, spec: InputSpec, split, limit: int | None = None) -> dict:
+    """Mean table metrics over the first ``limit`` samples, plus ``rel_l2_converged``: the mean
+    relative L2 over those whose solve converged (NaN if none), to separate model error from
+    the error of a ground truth that had not settled."""
     n = len(split.target) if limit is None else min(limit, len(split.target))
     rows = []
     for i in range(n):
         params = sample_params(spec, split.scenarios[i])
         rows.append(table_metrics(predict_table(model, spec, split.grid, split.target[i], params), split.value[i]))
-    return {k: float(np.mean([r[k] for r in rows])) for k in rows[0]} | {"n": n}
+    converged = [r["rel_l2"] for r, ok in zip(rows, split.converged[:n], strict=True) if ok]
+    return ({k: float(np.mean([r[k] for r in rows])) for k in rows[0]} | {"n": n}
+            | {"rel_l2_converged": float(np.mean(converged)) if converged else math.nan})
 
 
 def inference_ms(model, spec: InputSpec, shape: tuple[int, int], repeats: int = 30) -> float:
@@ -122,6 +128,7 @@ def _evaluate_folder(model, card: dict, stem: Path, data: Path, train_limit: int
         "test_rel_l2": round(te["rel_l2"], 4),
         "test_iou": round(te["iou"], 4),
         "test_false_safe": round(te["false_safe"], 4),
+        **({"test_rel_l2_converged": _rounded(te["rel_l2_converged"])} if flagged else {}),
         "dataset_time_h": round(float(train.attrs["solve_wall_s"] + test.attrs["solve_wall_s"]) / 3600, 2),
         "train_time_min": round(card["training"].get("wall_s", float("nan")) / 60, 1),
         "params_M": round(card["parameters"] / 1e6, 3),
@@ -133,6 +140,11 @@ def _evaluate_folder(model, card: dict, stem: Path, data: Path, train_limit: int
         "speedup": round(1e3 * solve_s / infer),
         "train_samples_scored": tr["n"],
     }
+
+
+def _rounded(x: float) -> float | None:
+    """``x`` to 4 digits; None for NaN (no sample to average), which JSON and CSV can hold."""
+    return None if math.isnan(x) else round(x, 4)
 
 
 def averaged(model) -> bool:

@@ -85,6 +85,8 @@ def test_below_input_prior_never_exceeds_channel_0(kind):
     assert out.shape == (3, 1, 24, 31)
     assert (out <= x[:, 0:1]).all()
     assert (out < x[:, 0:1]).any()
+    # a fresh model starts close to V0, well inside the normalised value range (|V| < 1)
+    assert float((x[:, 0:1] - out).mean()) < 0.1
 
 
 def trained_like(model: torch.nn.Module) -> torch.nn.Module:

@@ -170,6 +170,13 @@ def test_unconverged_samples_only_on_request(trained, ci_data, tmp_path):
         evaluation.evaluate(out, data)
     row = evaluation.evaluate(out, data, unconverged=True)[0]
     assert row["n_train/n_test"].endswith(f"/{n_test} ({n_test} unconverged)")
+    assert row["test_rel_l2_converged"] is None  # no converged test sample to average
+    with h5py.File(data / "test.h5", "r+") as f:  # now only the first test sample converged
+        f["converged"][0] = True
+    converged_only = evaluation.evaluate(out, data)[0]
+    row = evaluation.evaluate(out, data, unconverged=True)[0]
+    assert converged_only["n_train/n_test"].endswith("/1")
+    assert row["test_rel_l2_converged"] == converged_only["test_rel_l2"] > 0
 
 
 def test_a_train_only_folder_joins_a_split_with_a_test_set(ci_data, tmp_path):
