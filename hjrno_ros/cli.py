@@ -138,7 +138,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     cfg = TrainConfig(data=data, model=args.model, model_config=model_config, epochs=args.epochs,
                       slices_per_epoch=args.slices_per_epoch, batch=args.batch, lr=args.lr, seed=args.seed,
                       max_minutes=args.max_minutes, out=out, allow_unconverged=args.allow_unconverged,
-                      augment=args.augment)
+                      augment=args.augment, level_set_weight=args.level_set_weight,
+                      level_set_width=args.level_set_width)
     weights = train(cfg, progress=not args.quiet)
     print(f"wrote {weights} and {Path(out).name}.json")
     return 0
@@ -294,6 +295,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "missed the convergence tolerance (counted in the card)")
     p.add_argument("--augment", action="store_true", help="draw each training slice under a random one of the "
                    "car's 8 exact symmetries (quarter turns, reflections; needs a square window)")
+    p.add_argument("--level-set-weight", type=float, default=0.0, help="extra loss weight λ near V∞ = 0: each "
+                   "point's squared error counts 1 + λ exp(-(V∞/width)²) times (default 0: plain relative L2)")
+    p.add_argument("--level-set-width", type=float, default=0.2, help="width of that weight in metres (default 0.2)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_train)
 

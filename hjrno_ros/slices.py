@@ -164,7 +164,15 @@ class SliceUnion:
         return torch.cat(xs)[inverse], torch.cat(ys)[inverse]
 
 
-def relative_l2(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """Mean over the batch of ‖pred − target‖₂ / ‖target‖₂ per item."""
+def relative_l2(pred: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
+    """Mean over the batch of ‖pred − target‖₂ / ‖target‖₂ per item; with ``weight`` (same shape),
+    the squared error of each point counts ``weight`` times."""
     dims = tuple(range(1, pred.ndim))
-    return (torch.sqrt(((pred - target) ** 2).sum(dims)) / torch.sqrt((target**2).sum(dims)).clamp_min(1e-8)).mean()
+    err = (pred - target) ** 2 if weight is None else weight * (pred - target) ** 2
+    return (torch.sqrt(err.sum(dims)) / torch.sqrt((target**2).sum(dims)).clamp_min(1e-8)).mean()
+
+
+def level_set_weight(target: torch.Tensor, strength: float, width: float) -> torch.Tensor:
+    """1 + strength · exp(−(target / width)²): extra weight near the zero level set of V∞, where the
+    filter acts (``width`` in the target's units)."""
+    return 1.0 + strength * torch.exp(-((target / width) ** 2))

@@ -24,7 +24,7 @@ import torch
 from . import checkpoint, versions
 from .dataset import load_split
 from .operators import build_model, count_parameters
-from .slices import SliceSet, SliceUnion, relative_l2, spec_for
+from .slices import SliceSet, SliceUnion, level_set_weight, relative_l2, spec_for
 
 DEFAULT_MODEL_CONFIGS = {
     "fno": {"width": 24, "modes": 12, "n_layers": 4},
@@ -48,6 +48,8 @@ class TrainConfig:
     out: str = "models/model"
     allow_unconverged: bool = False  # also train on samples whose solve missed the tolerance (flagged in the card)
     augment: bool = False  # draw each training slice under a random exact symmetry of the car (slices.symmetry)
+    level_set_weight: float = 0.0  # extra loss weight at V∞ = 0 (slices.level_set_weight); 0 = plain rel. L2
+    level_set_width: float = 0.2  # m: how far from V∞ = 0 that weight reaches
 
     def resume_key(self) -> dict:
         d = dataclasses.asdict(self)
@@ -85,6 +87,9 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
         raise ValueError(f"unknown model {cfg.model!r}; choose from {', '.join(DEFAULT_MODEL_CONFIGS)}")
     if cfg.epochs < 1 or cfg.batch < 1 or not cfg.lr > 0:
         raise ValueError(f"need epochs >= 1, batch >= 1, lr > 0; got {cfg.epochs}, {cfg.batch}, {cfg.lr}")
+    if not (cfg.level_set_weight >= 0 and cfg.level_set_width > 0):
+        raise ValueError(f"need level-set weight >= 0 and width > 0 m; got {cfg.level_set_weight}, "
+                         f"{cfg.level_set_width}")
     folders = [Path(d) for d in cfg.data.split(",") if d]
     converged_only = not cfg.allow_unconverged
     train_splits = [load_split(d / "train.h5", converged_only=converged_only) for d in folders]
@@ -131,7 +136,10 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
                          leave=False):
             chunk = slice(step * cfg.batch, (step + 1) * cfg.batch)
             x, y = train_set.batch(order[chunk], None if sym is None else sym[chunk])
-            loss = relative_l2(model(x), y)
+            pred = model(x)
+            weight = level_set_weight(y, cfg.level_set_weight, cfg.level_set_width / spec.value_scale) \
+                if cfg.level_set_weight else None
+            loss = relative_l2(pred, y, weight)
             if not torch.isfinite(loss):
                 raise TrainingDiverged(f"loss became {loss.item()} in epoch {epoch + 1}, step {step}; "
                                        f"last good checkpoint: {cfg.out}.train.safetensors (try a lower --lr)")
@@ -140,7 +148,7 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
             torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
             opt.step()
             sched.step()
-            losses.append(loss.item())
+            losses.append(loss.item() if weight is None else relative_l2(pred.detach(), y).item())
         test_loss = evaluate_slices(model, test_set, cfg.seed)
         history.append({"epoch": epoch + 1, "train_rel_l2": float(np.mean(losses)), "test_rel_l2": test_loss,
                         "wall_s": time.perf_counter() - t0})
@@ -207,7 +215,9 @@ def _card(cfg: TrainConfig, model, spec, folders: list[Path], tested: list[Path]
                     "unconverged_used": sum(int((~s.converged).sum()) for s in train_splits + test_splits),
                     "grid": list(train_splits[0].config.grid)},
         "training": {"epochs": cfg.epochs, "slices_per_epoch": cfg.slices_per_epoch, "batch": cfg.batch,
-                     "lr": cfg.lr, "weight_decay": cfg.weight_decay, "seed": cfg.seed, "loss": "relative L2",
+                     "lr": cfg.lr, "weight_decay": cfg.weight_decay, "seed": cfg.seed,
+                     "loss": "relative L2" + (f", weight 1 + {cfg.level_set_weight} exp(-(V/{cfg.level_set_width} m)^2)"
+                                              if cfg.level_set_weight else ""),
                      "augment": "D4 symmetries (slices.symmetry)" if cfg.augment else None,
                      "threads": torch.get_num_threads()},
         "epsilon": None,

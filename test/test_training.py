@@ -14,7 +14,7 @@ from hjrno_ros import checkpoint, dataset, evaluation
 from hjrno_ros.dynamics import DynamicDubinsCar
 from hjrno_ros.geometry import Polygon
 from hjrno_ros.grids import car_grid
-from hjrno_ros.slices import SliceSet, spec_for, symmetry
+from hjrno_ros.slices import SliceSet, level_set_weight, relative_l2, spec_for, symmetry
 from hjrno_ros.solver import solve
 from hjrno_ros.training import TrainConfig, TrainingDiverged, train
 from hjrno_ros.value_function import LearnedValueFunction
@@ -195,6 +195,23 @@ def test_a_train_only_folder_joins_a_split_with_a_test_set(ci_data, tmp_path):
     assert [r["n_train/n_test"] for r in evaluation.evaluate(tmp_path / "m")] == [f"{base.n_train}/{base.n_test}"]
     with pytest.raises(ValueError, match="no test split among the datasets"):
         train(TrainConfig(**{**cfg.__dict__, "data": str(extra)}), progress=False)
+
+
+def test_level_set_weight_counts_errors_near_zero_more(ci_data, tmp_path):
+    target = torch.tensor([[[[0.0, 1.0]]]])
+    near, far = torch.tensor([[[[0.1, 1.0]]]]), torch.tensor([[[[0.0, 1.1]]]])
+    w = level_set_weight(target, 3.0, 0.2)
+    assert relative_l2(near, target).item() == pytest.approx(0.1)
+    assert relative_l2(near, target, w).item() == pytest.approx(0.2)  # sqrt(1 + 3) × the error at V∞ = 0
+    assert relative_l2(far, target, w).item() == pytest.approx(0.1, rel=1e-6)  # weight ≈ 1 at V∞ = 1
+    cfg = TrainConfig(data=str(ci_data), model_config=SMALL, epochs=2, slices_per_epoch=64, out=str(tmp_path / "m"),
+                      level_set_weight=3.0, level_set_width=0.3)
+    train(cfg, progress=False)
+    card = checkpoint.load_card(tmp_path / "m")
+    assert "weight 1 + 3.0" in card["training"]["loss"] and "0.3 m" in card["training"]["loss"]
+    assert all(np.isfinite(h["train_rel_l2"]) for h in card["training"]["history"])
+    with pytest.raises(ValueError, match="level-set weight"):
+        train(TrainConfig(**{**cfg.__dict__, "level_set_width": 0.0}), progress=False)
 
 
 def test_metrics_are_right_on_known_tables():
