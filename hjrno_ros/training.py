@@ -118,6 +118,7 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
                                                 pct_start=0.1)
     card = _card(cfg, model, spec, folders, tested, train_splits, test_splits, command)
     start_epoch, history = _resume(cfg, model, opt, sched, steps_per_epoch)
+    width = cfg.level_set_width / spec.value_scale  # the loss weight's width in normalised target units
     start = time.perf_counter()
     spent_before = sum(h["wall_s"] for h in history)
     from tqdm import tqdm
@@ -137,8 +138,7 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
             chunk = slice(step * cfg.batch, (step + 1) * cfg.batch)
             x, y = train_set.batch(order[chunk], None if sym is None else sym[chunk])
             pred = model(x)
-            weight = level_set_weight(y, cfg.level_set_weight, cfg.level_set_width / spec.value_scale) \
-                if cfg.level_set_weight else None
+            weight = level_set_weight(y, cfg.level_set_weight, width) if cfg.level_set_weight else None
             loss = relative_l2(pred, y, weight)
             if not torch.isfinite(loss):
                 raise TrainingDiverged(f"loss became {loss.item()} in epoch {epoch + 1}, step {step}; "
