@@ -14,6 +14,7 @@ import argparse
 import dataclasses
 import json
 import resource
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -142,6 +143,17 @@ def cmd_train(args: argparse.Namespace) -> int:
                       level_set_width=args.level_set_width)
     weights = train(cfg, progress=not args.quiet)
     print(f"wrote {weights} and {Path(out).name}.json")
+    return 0
+
+
+def cmd_ensemble(args: argparse.Namespace) -> int:
+    """Save several trained models as one whose output is their mean."""
+    from . import model_ensemble
+
+    command = "hjrno " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    weights = model_ensemble.combine(args.model, args.out, command)
+    print(f"wrote {weights} and {Path(args.out).name}.json ({len(args.model)} members); "
+          f"calibrate it before use: hjrno calibrate --model {args.out}")
     return 0
 
 
@@ -300,6 +312,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--level-set-width", type=float, default=0.2, help="width of that weight in metres (default 0.2)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("ensemble", help="save trained models as one whose output is their mean (then calibrate it)")
+    p.add_argument("--model", action="append", required=True, help="member model stem (repeat, at least 2; same "
+                   "inputs and datasets)")
+    p.add_argument("--out", required=True, help="model stem of the ensemble")
+    p.set_defaults(func=cmd_ensemble)
 
     p = sub.add_parser("evaluate", help="paper-style metrics of a trained model; updates the results table")
     p.add_argument("--model", required=True, help="model stem or .safetensors/.json path (--superres: comma list)")

@@ -150,6 +150,11 @@ def test_cnn_runs_at_other_resolutions():
         ("tno", {"in_channels": 4, "latent": 1}, "latent"),
         ("cnn", {"in_channels": 4, "depth": 0}, "depth"),
         ("cnn", {"in_channels": 4, "prior": "above"}, "prior"),
+        ("ensemble", {"in_channels": 4, "members": [{"kind": "cnn", "config": {"in_channels": 4}}]}, "at least 2"),
+        ("ensemble", {"in_channels": 4, "members": [{"kind": "cnn", "config": {"in_channels": 4}},
+                                                     {"kind": "ensemble", "config": {}}]}, "member 1"),
+        ("ensemble", {"in_channels": 4, "members": [{"kind": "cnn", "config": {"in_channels": 4}},
+                                                     {"kind": "fno", "config": {"in_channels": 3}}]}, "3 input"),
     ],
 )
 def test_bad_config_raises_value_error(kind, config, reason):

@@ -268,3 +268,45 @@ def test_parametric_diagonal_figure(tmp_path):
     card = {"kind": "fno", "inputs": spec.as_dict()}
     path = evaluation.diagonal_figure(model, card, test, tmp_path / "diag.png")
     assert path.stat().st_size > 10_000
+
+
+def test_ensemble_predicts_the_members_mean_and_refuses_unlike_members(trained, ci_data, tmp_path):
+    """``hjrno ensemble``: one checkpoint whose output is the mean of its members', usable like any model."""
+    from hjrno_ros import model_ensemble
+
+    _, fno = trained
+    cnn = tmp_path / "cnn"
+    train(TrainConfig(data=str(ci_data), model="cnn", model_config={"channels": 4, "depth": 2}, epochs=1,
+                      slices_per_epoch=64, batch=16, out=str(cnn)), progress=False, command="test")
+    ens = tmp_path / "ens"
+    model_ensemble.combine([str(fno), str(cnn)], ens, "test")
+    model, card = checkpoint.load_model(ens)
+    (a, _), (b, _) = checkpoint.load_model(fno), checkpoint.load_model(cnn)
+    x = torch.randn(2, 4, 20, 20)
+    with torch.no_grad():
+        torch.testing.assert_close(model(x), (a(x) + b(x)) / 2, rtol=0, atol=1e-6)
+        assert (a(x) - b(x)).abs().max() > 1e-3  # the mean differs from either member
+    assert card["kind"] == "ensemble" and card["epsilon"] is None and [m["kind"] for m in card["members"]] == [
+        "fno", "cnn"]
+    assert card["parameters"] == sum(checkpoint.load_card(s)["parameters"] for s in (fno, cnn))
+    value = LearnedValueFunction(ens, device="cpu")  # the node's core reads it like any model
+    xy = value.window_points((0.0, 0.0))
+    assert np.isfinite(value.predict(np.hypot(xy[..., 0], xy[..., 1]) - 0.8, np.array([0.5]), np.array([0.3]))).all()
+    row = evaluation.evaluate(str(ens), str(ci_data))[0]
+    assert row["model"].startswith("ensemble") and 0 < row["test_rel_l2"] < 10
+
+    with pytest.raises(ValueError, match="at least 2"):
+        model_ensemble.combine([str(fno)], tmp_path / "one", "test")
+    with pytest.raises(ValueError, match="cannot itself be an ensemble"):
+        model_ensemble.combine([str(ens), str(fno)], tmp_path / "nested", "test")
+    (tmp_path / "other").mkdir()
+    other = copy_model(cnn, tmp_path / "other")
+    card_other = checkpoint.load_card(other)
+    checkpoint.update_card(other, {"dataset": {**card_other["dataset"], "digests": ["0000000000000000"]}})
+    with pytest.raises(ValueError, match="different datasets"):
+        model_ensemble.combine([str(fno), str(other)], tmp_path / "bad", "test")
+    checkpoint.update_card(other, {"dataset": card_other["dataset"],
+                                   "inputs": {**card_other["inputs"], "value_scale": 123.0}})
+    with pytest.raises(ValueError, match="'inputs'"):
+        model_ensemble.combine([str(fno), str(other)], tmp_path / "bad", "test")
+    assert not checkpoint.paths(tmp_path / "bad")[0].exists()  # nothing written for a refused ensemble

@@ -119,11 +119,15 @@ from hjrno_ros.operators.tno import TNO  # noqa: E402
 MODELS: dict[str, type[NeuralOperator]] = {"fno": FNO, "tno": TNO, "cnn": CNN}
 
 
-def build_model(kind: str, **config: Any) -> NeuralOperator:
-    """The model ``kind`` ("fno", "tno", "cnn") built from keyword ``config``; ValueError on bad input."""
-    if kind not in MODELS:
-        raise ValueError(f"unknown model kind {kind!r}; expected one of {sorted(MODELS)}")
-    cls = MODELS[kind]
+def build_model(kind: str, **config: Any) -> nn.Module:
+    """The model ``kind`` ("fno", "tno", "cnn", or "ensemble" of those) built from keyword ``config``;
+    ValueError on bad input."""
+    from hjrno_ros.operators.ensemble import Ensemble
+
+    kinds: dict[str, type[nn.Module]] = {**MODELS, Ensemble.kind: Ensemble}
+    if kind not in kinds:
+        raise ValueError(f"unknown model kind {kind!r}; expected one of {sorted(kinds)}")
+    cls = kinds[kind]
     accepted = set(inspect.signature(cls.__init__).parameters) - {"self"}
     unknown = sorted(set(config) - accepted)
     if unknown:
