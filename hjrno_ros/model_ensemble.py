@@ -4,7 +4,8 @@ The members must read the same inputs the same way (input normalisation, window,
 and come from the same datasets, so that the card's test splits are held out for every member and
 ``hjrno calibrate`` / ``simulate`` / the node treat the ensemble like any model.  The result is an
 ordinary safetensors + JSON pair (kind "ensemble", :class:`~hjrno_ros.operators.ensemble.Ensemble`);
-it has no ε until ``hjrno calibrate`` measures one for it.
+it has no ε until ``hjrno calibrate`` measures one for it.  Members enter plain: their own ε and
+symmetry averaging do not carry over (``calibrate --symmetry-average`` averages the ensemble).
 """
 
 from __future__ import annotations

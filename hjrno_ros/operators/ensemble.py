@@ -1,8 +1,8 @@
 """An ensemble: the mean of several trained operators' outputs, one module, one checkpoint.
 
 Members trained apart err partly independently; their mean errs less where it matters for the
-filter (README, closed loop: three indoor CNNs trained with different losses collided 5 times in
-500 episodes where each alone collided 24-58 times).  Cost: one forward pass per member.
+filter (README, closed loop: three indoor CNNs trained with different losses collided 3-5 times
+in 500 episodes where each alone collided 23-69 times).  Cost: one forward pass per member.
 
 Config: ``in_channels`` and ``members``, a list of ``{"kind": ..., "config": {...}}`` that
 :func:`hjrno_ros.operators.build_model` rebuilds; members are "fno", "tno" or "cnn" (no nesting).
