@@ -17,7 +17,9 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import os
 import sys
+import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -281,11 +283,24 @@ def _run(config: ExperimentConfig, root: Path, todo: list, workers: int, progres
             for split, index in todo:
                 done(write_sample(root, config, split, index))
         else:
-            with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+            with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=exit_with_parent,
+                                     initargs=(os.getpid(),)) as pool:
                 futures = [pool.submit(write_sample, root, config, s, i) for s, i in todo]
                 for future in as_completed(futures):
                     done(future.result())
     return results
+
+
+def exit_with_parent(parent: int, poll_s: float = 0.5) -> None:
+    """Worker initializer: end this worker once ``parent`` is gone.  A generating process killed
+    alone (``kill PID``, SIGKILL) runs no clean-up, and its workers would otherwise keep solving
+    queued samples for nobody; the sample in hand is lost whole (files are written atomically)."""
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(poll_s)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True, name="exit-with-parent").start()
 
 
 def consolidate_complete(root: Path, config: ExperimentConfig) -> list[Path]:

@@ -1,5 +1,6 @@
 """Dataset generation as a user runs it: real solves, real processes killed and resumed, real files."""
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -145,3 +146,39 @@ def test_show_draws_samples(ci_run, tmp_path):
     bad.write_bytes(b"nope")
     out = hjrno("show", "--dataset", str(bad))
     assert out.returncode == 2 and "unreadable" in out.stderr
+
+
+def _stat(pid: int) -> list[str]:
+    """Fields of /proc/PID/stat after the command name (state, ppid, ...); [] once the process is gone."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return []
+
+
+def _running(pid: int) -> bool:
+    return _stat(pid)[:1] not in ([], ["Z"])  # a zombie has ended; only its parent's reaping is left
+
+
+def test_workers_end_when_the_generating_process_is_killed(tmp_path):
+    """``kill -9`` of ``hjrno generate --workers 2`` alone (not its group) leaves no worker solving on."""
+    config = write_config(tmp_path / "long.yaml", name="long", n_train=40, n_test=2)
+    args = [sys.executable, "-m", "hjrno_ros.cli", "generate", "--experiment", "long", "--config", str(config),
+            "--workers", "2", "--out", str(tmp_path / "long"), "--quiet"]
+    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        deadline = time.time() + 120
+        while not list((tmp_path / "long" / "samples" / "train").glob("[0-9]*.h5")) and time.time() < deadline:
+            time.sleep(0.05)
+        workers = [int(p.parent.name) for p in Path("/proc").glob("[0-9]*/cmdline")
+                   if _stat(int(p.parent.name))[1:2] == [str(proc.pid)] and b"spawn_main" in p.read_bytes()]
+        assert len(workers) == 2, "two solving workers should be running"
+        proc.kill()
+        proc.wait()
+        deadline = time.time() + 20
+        while any(map(_running, workers)) and time.time() < deadline:
+            time.sleep(0.1)
+        assert not [w for w in workers if _running(w)], "workers outlived the killed generator"
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)  # whatever is left of the group
