@@ -54,5 +54,4 @@ def combine(stems: list[str], out: str | Path, command: str) -> Path:
                         for s, c in zip(stems, cards, strict=True)],
             "epsilon": None, "command": command, "versions": versions.versions()}
     weights, _ = checkpoint.save(out, {f"model.{k}": v for k, v in model.state_dict().items()}, card)
-    checkpoint.load_model(out)  # what was written loads back, or this raises
     return weights
