@@ -181,17 +181,25 @@ def _models(items: list[str] | None) -> dict[str, str]:
     return {label: stem for label, stem in pairs}
 
 
-def _data_folders(data: str | None, stem: str) -> list[str]:
-    from . import checkpoint
+def _data_folders(data: str | None, stem: str, unconverged: bool) -> list[str]:
+    """``--data``, or else the card's test folders that can be halved (a one-room split is left out, with a note)."""
+    from . import checkpoint, held_out
 
-    return data.split(",") if data else checkpoint.folders_with_test_split(checkpoint.load_card(stem))
+    if data:
+        return data.split(",")
+    folders = checkpoint.folders_with_test_split(checkpoint.load_card(stem))
+    kept = [f for f in folders if held_out.has_halves(f, unconverged)]
+    for f in folders:
+        if f not in kept:
+            print(f"{f}: fewer than 2 held-out scenarios, left out (choose folders with --data)", file=sys.stderr)
+    return kept or folders  # none usable: the full list, so that loading names the first problem
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     """Split-conformal ε for a model, written into its card (the node's default margin)."""
     from .calibration import calibrate_model
 
-    folders = _data_folders(args.data, args.model)
+    folders = _data_folders(args.data, args.model, args.allow_unconverged)
     entry = calibrate_model(args.model, folders, args.alpha, args.beta, args.draws, args.seed, args.margin,
                             write=not args.dry_run, unconverged=args.allow_unconverged,
                             average=args.symmetry_average)
@@ -217,7 +225,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
     torch.set_num_threads(args.threads)
     models = _models(args.model)
-    folders = _data_folders(args.data, next(iter(models.values())))
+    folders = _data_folders(args.data, next(iter(models.values())), args.allow_unconverged)
     study = filter_study.run_study(folders, models, args.episodes, args.seed, args.truth_epsilon, args.part,
                                    EpisodeSettings(duration=args.duration),
                                    filters=args.filters.split(",") if args.filters else None,

@@ -41,11 +41,20 @@ def load(folders: list[str | Path], part: str = "fresh", unconverged: bool = Fal
         split = load_split(Path(folder) / "test.h5", converged_only=not unconverged)
         if split.grid.ndim != 4:
             raise ValueError(f"{folder}: closed-loop and calibration need car datasets, not {split.config.family}")
-        calib, fresh = held_out_halves(len(split.scenarios))
+        try:
+            calib, fresh = held_out_halves(len(split.scenarios))
+        except ValueError as err:  # name the folder: the user passes several, or the card's
+            raise ValueError(f"{folder}: {err}; leave it out with --data") from None
         chosen = {"calibration": calib, "fresh": fresh, "all": calib + fresh}[part]
         out += [Solved(f"{split.config.name}/{split.scenarios[i].seed}", split.scenarios[i], split.grid,
                        split.target[i], split.value[i]) for i in chosen]
     return out
+
+
+def has_halves(folder: str | Path, unconverged: bool = False) -> bool:
+    """Whether a folder's test split has the 2 usable scenarios that a calibration and a fresh half need."""
+    split = load_split(Path(folder) / "test.h5", converged_only=not unconverged, warn=lambda m: None)
+    return len(split.scenarios) >= 2
 
 
 def predict(stem: str | Path, solved: list[Solved], average: bool | None = None) -> list[np.ndarray]:

@@ -3,7 +3,7 @@
 The model was trained on windows of fixed physical size (``window``, from its card) centred on
 the origin; at run time the window is centred on the robot, axis-aligned with the map frame, so
 headings stay map-frame headings.  V0 is the signed distance sampled at the model's x-y nodes
-(any resolution of the same window works: the operators are discretisation invariant).  For the
+(the card's grid: the FNO and TNO would take other resolutions of the window, the CNN would not).  For the
 filter, the operator predicts the 3 × 3 (v, θ) slices around the robot's speed and heading, and a
 :class:`ValueTable` over that stencil gives V and ∇V (x, y, v, θ) at the state.
 """

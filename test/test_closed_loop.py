@@ -1,6 +1,8 @@
 """Closed loop, calibration and the demo: real solves, real torch models, real rclpy over DDS."""
 
 import json
+import re
+import shutil
 import subprocess
 import sys
 
@@ -187,12 +189,19 @@ def test_symmetry_averaging_refuses_a_non_square_window(trained):
         checkpoint.symmetry_averaged(model, card, checkpoint.paths(stem)[1])
 
 
-def test_held_out_halves_and_unconverged_worlds(ci_data, trained):
+def test_held_out_halves_and_unconverged_worlds(ci_data, trained, tmp_path):
     import h5py
 
     _, stem = trained
 
     from hjrno_ros import held_out
+    from hjrno_ros.cli import _data_folders
+
+    full = tmp_path / "full"
+    shutil.copytree(ci_data, full)
+    model = copy_model(stem, tmp_path)
+    card = checkpoint.load_card(model)
+    checkpoint.update_card(model, {"dataset": {**card["dataset"], "test_folders": [str(full), str(ci_data)]}})
 
     calib, fresh = calibration.held_out_halves(5)
     assert calib == [0, 1, 2] and fresh == [3, 4]
@@ -203,9 +212,15 @@ def test_held_out_halves_and_unconverged_worlds(ci_data, trained):
         flags = f["converged"][...]
         f["converged"][0] = False
     try:
-        with pytest.raises(ValueError, match="at least 2 held-out scenarios"):  # one converged left
+        one_left = re.escape(f"{ci_data}: calibration needs at least 2 held-out scenarios")  # one converged left
+        with pytest.raises(ValueError, match=one_left):
             held_out.load([ci_data], "all")
         assert len(held_out.load([ci_data], "all", unconverged=True)) == 2
+        assert not held_out.has_halves(ci_data) and held_out.has_halves(ci_data, unconverged=True)
+        # calibrate/simulate without --data: the card's folder that cannot be halved is left out
+        assert _data_folders(None, str(model), False) == [str(full)]
+        assert _data_folders(None, str(model), True) == [str(full), str(ci_data)]
+        assert _data_folders(f"{ci_data}", str(model), False) == [str(ci_data)]  # chosen: kept, refused later
         with pytest.raises(ValueError):  # the calibration half lost its only scenario
             calibration.calibrate_model(stem, [ci_data], 0.05, 0.05, 2000, write=False)
         entry = calibration.calibrate_model(stem, [ci_data], 0.05, 0.05, 2000, write=False, unconverged=True)
