@@ -8,7 +8,8 @@ The only module that imports rclpy.  Data flow (DESIGN.md §1, §6)::
         ─► ValueTable over the 3 × 3 (v, θ) stencil, swapped in atomically; value grid + floats
     cmd_vel_in (Twist | TwistStamped) ─► V, ∇V at the state ─► safety_filter ─► cmd_vel_out
 
-The command callback never waits for inference: it reads the latest table (one reference).
+The command callback never waits for inference: it reads the latest table (one reference), and the
+inference thread runs at a lower scheduling priority, so a busy CPU serves commands first.
 Everything unknown or stale fails closed (zero velocity), with a reason in ``brt/status`` and
 ``/diagnostics``:
 
@@ -62,6 +63,7 @@ import collections
 import dataclasses
 import json
 import math
+import os
 import sys
 import threading
 import time
@@ -92,6 +94,7 @@ CARD_LIMITS = ("a_max", "kappa_max", "v_max")  # parameters that must agree with
 STATUS_PERIOD = 0.1  # s
 DIAGNOSTICS_PERIOD = 1.0  # s
 MAP_YAW_TOLERANCE = 1e-3  # rad: only axis-aligned maps are supported
+INFERENCE_NICE = 10  # the inference thread's nice value above the node's
 LIMIT_TOLERANCE = 1e-6
 
 
@@ -211,6 +214,15 @@ def resolve_model(model_path: str) -> Path:
             return stem
     looked = ", ".join(str(p) for p in bundled_model_candidates())
     raise StartupError(f"no bundled model found (looked for {looked}); set the model_path parameter")
+
+
+def _lower_thread_priority(nice: int) -> None:
+    """Give the calling thread a higher nice value (Linux: per thread), so that on a busy CPU the
+    command path is scheduled before inference; silently a no-op where the OS does not allow it."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), os.getpriority(os.PRIO_PROCESS, 0) + nice)
+    except (AttributeError, OSError):
+        pass
 
 
 def yaw_of(q) -> float:
@@ -742,6 +754,7 @@ class BrtNode(Node):
 
     # ------------------------------------------------------------------ inference (own thread)
     def _inference_loop(self) -> None:
+        _lower_thread_priority(INFERENCE_NICE)
         while not self._stop.is_set():
             self._wake.wait(1.0 / self._cfg["inference_rate"])
             self._wake.clear()

@@ -37,7 +37,7 @@ from std_msgs.msg import Float32MultiArray, String  # noqa: E402
 from std_srvs.srv import SetBool  # noqa: E402
 
 from hjrno_ros import checkpoint, geometry  # noqa: E402
-from hjrno_ros.brt_node import BrtNode  # noqa: E402
+from hjrno_ros.brt_node import INFERENCE_NICE, BrtNode  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DOMAIN = 1 + os.getpid() % 50  # Linux: ids <= 101 avoid the ephemeral port range
@@ -217,6 +217,14 @@ def test_far_from_obstacles_command_passes_unchanged(ros):
     dims = values.layout.dim
     assert [d.label for d in dims] == ["y", "x"] and dims[0].size == grid.info.height
     assert dims[1].size == grid.info.width and len(values.data) == dims[0].stride
+
+
+def test_inference_thread_yields_the_cpu_to_the_command_path(ros):
+    """The inference thread runs niced (Linux schedules threads by their own nice value), so a busy
+    CPU serves the executor's command callbacks first."""
+    _, node = ros
+    worker = node._worker.native_id
+    assert os.getpriority(os.PRIO_PROCESS, worker) == min(19, os.getpriority(os.PRIO_PROCESS, 0) + INFERENCE_NICE)
 
 
 def test_parameter_updates_are_validated(ros):
