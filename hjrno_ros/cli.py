@@ -140,7 +140,8 @@ def cmd_train(args: argparse.Namespace) -> int:
                       slices_per_epoch=args.slices_per_epoch, batch=args.batch, lr=args.lr, seed=args.seed,
                       max_minutes=args.max_minutes, out=out, allow_unconverged=args.allow_unconverged,
                       augment=args.augment, level_set_weight=args.level_set_weight,
-                      level_set_width=args.level_set_width)
+                      level_set_width=args.level_set_width, angle_pair_weight=args.angle_pair_weight,
+                      init=args.init or "")
     weights = train(cfg, progress=not args.quiet)
     print(f"wrote {weights} and {Path(out).name}.json")
     return 0
@@ -318,6 +319,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--level-set-weight", type=float, default=0.0, help="extra loss weight λ near V∞ = 0: each "
                    "point's squared error counts 1 + λ exp(-(V∞/width)²) times (default 0: plain relative L2)")
     p.add_argument("--level-set-width", type=float, default=0.2, help="width of that weight in metres (default 0.2)")
+    p.add_argument("--angle-pair-weight", type=float, default=0.0, help="add this weight times the rel. L2 of V's "
+                   "change to the next grid angle (the sign of dV/dtheta picks the safe turn); half of each batch "
+                   "is then the other halves' angle neighbours (default 0: off)")
+    p.add_argument("--init", default=None, help="start from this model stem's weights (fine-tuning; fresh "
+                   "optimiser and schedule, same --model and --model-config)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_train)
 

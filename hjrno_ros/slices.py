@@ -111,6 +111,13 @@ class SliceSet:
         sample, rest = np.divmod(index, self.n_slices)
         return sample, np.unravel_index(rest, self.slice_shape)
 
+    def angle_neighbour(self, index: np.ndarray) -> np.ndarray:
+        """The slice of the same sample and speed at the next grid angle (θ or ψ, periodic)."""
+        index = np.asarray(index)
+        n_angle = self.slice_shape[-1]
+        k = index % n_angle
+        return index - k + (k + 1) % n_angle
+
     def check_symmetric(self) -> None:
         """Raise unless :func:`symmetry` maps this split's slices onto exact samples."""
         lo, hi, shape = self.split.grid.lo, self.split.grid.hi, self.split.grid.shape
@@ -150,6 +157,16 @@ class SliceUnion:
     def __len__(self) -> int:
         return int(self.offsets[-1])
 
+    def angle_neighbour(self, index: np.ndarray) -> np.ndarray:
+        """:meth:`SliceSet.angle_neighbour` of each slice, within its own dataset."""
+        index = np.asarray(index)
+        part = np.searchsorted(self.offsets, index, side="right") - 1
+        out = np.empty_like(index)
+        for k in np.unique(part):
+            sel = part == k
+            out[sel] = self.parts[k].angle_neighbour(index[sel] - self.offsets[k]) + self.offsets[k]
+        return out
+
     def batch(self, index: np.ndarray, sym: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         index = np.asarray(index)
         part = np.searchsorted(self.offsets, index, side="right") - 1
@@ -170,6 +187,14 @@ def relative_l2(pred: torch.Tensor, target: torch.Tensor, weight: torch.Tensor |
     dims = tuple(range(1, pred.ndim))
     err = (pred - target) ** 2 if weight is None else weight * (pred - target) ** 2
     return (torch.sqrt(err.sum(dims)) / torch.sqrt((target**2).sum(dims)).clamp_min(1e-8)).mean()
+
+
+def angle_difference_l2(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Relative L2 of the change between paired slices: the batch's first half holds slices, its
+    second half the same slices at the next grid angle (``angle_neighbour``).  The sign of V's
+    change with θ picks the safe control's turn, and plain relative L2 on V barely sees it."""
+    half = len(pred) // 2
+    return relative_l2(pred[half:] - pred[:half], target[half:] - target[:half])
 
 
 def level_set_weight(target: torch.Tensor, strength: float, width: float) -> torch.Tensor:

@@ -24,7 +24,7 @@ import torch
 from . import checkpoint, versions
 from .dataset import load_split
 from .operators import build_model, count_parameters
-from .slices import SliceSet, SliceUnion, level_set_weight, relative_l2, spec_for
+from .slices import SliceSet, SliceUnion, angle_difference_l2, level_set_weight, relative_l2, spec_for
 
 DEFAULT_MODEL_CONFIGS = {
     "fno": {"width": 24, "modes": 12, "n_layers": 4},
@@ -50,6 +50,8 @@ class TrainConfig:
     augment: bool = False  # draw each training slice under a random exact symmetry of the car (slices.symmetry)
     level_set_weight: float = 0.0  # extra loss weight at V∞ = 0 (slices.level_set_weight); 0 = plain rel. L2
     level_set_width: float = 0.2  # m: how far from V∞ = 0 that weight reaches
+    angle_pair_weight: float = 0.0  # weight of the loss on V's change to the next angle (slices.angle_difference_l2)
+    init: str = ""  # model stem to start from (fine-tuning: its weights, a fresh optimiser and schedule)
 
     def resume_key(self) -> dict:
         d = dataclasses.asdict(self)
@@ -90,6 +92,9 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
     if not (cfg.level_set_weight >= 0 and cfg.level_set_width > 0):
         raise ValueError(f"need level-set weight >= 0 and width > 0 m; got {cfg.level_set_weight}, "
                          f"{cfg.level_set_width}")
+    if not cfg.angle_pair_weight >= 0 or (cfg.angle_pair_weight and cfg.batch % 2):
+        raise ValueError(f"need angle-pair weight >= 0 and, when > 0, an even batch; got {cfg.angle_pair_weight}, "
+                         f"{cfg.batch}")
     folders = [Path(d) for d in cfg.data.split(",") if d]
     converged_only = not cfg.allow_unconverged
     train_splits = [load_split(d / "train.h5", converged_only=converged_only) for d in folders]
@@ -112,11 +117,15 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
     torch.manual_seed(cfg.seed)
     model_config = {**DEFAULT_MODEL_CONFIGS[cfg.model], **cfg.model_config, "in_channels": spec.in_channels}
     model = build_model(cfg.model, **model_config)
+    base_card = _initial_weights(cfg.init, model, spec) if cfg.init else None
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     steps_per_epoch = max(1, cfg.slices_per_epoch // cfg.batch)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=cfg.lr, total_steps=cfg.epochs * steps_per_epoch,
                                                 pct_start=0.1)
     card = _card(cfg, model, spec, folders, tested, train_splits, test_splits, command)
+    if base_card is not None:
+        card["training"]["init"] = {"model": cfg.init, "command": base_card.get("command"),
+                                    "wall_s": base_card.get("training", {}).get("wall_s")}
     start_epoch, history = _resume(cfg, model, opt, sched, steps_per_epoch)
     width = cfg.level_set_width / spec.value_scale  # the loss weight's width in normalised target units
     start = time.perf_counter()
@@ -129,17 +138,24 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
             break
         t0 = time.perf_counter()
         rng = np.random.default_rng([cfg.seed, epoch])
-        order = rng.integers(0, len(train_set), steps_per_epoch * cfg.batch)
+        per_step = cfg.batch // 2 if cfg.angle_pair_weight else cfg.batch  # drawn slices; the rest: their pairs
+        order = rng.integers(0, len(train_set), steps_per_epoch * per_step)
         sym = rng.integers(0, 8, len(order)) if cfg.augment else None
         model.train()
         losses = []
         for step in tqdm(range(steps_per_epoch), desc=f"epoch {epoch + 1}/{cfg.epochs}", disable=not progress,
                          leave=False):
-            chunk = slice(step * cfg.batch, (step + 1) * cfg.batch)
-            x, y = train_set.batch(order[chunk], None if sym is None else sym[chunk])
+            chunk = slice(step * per_step, (step + 1) * per_step)
+            index, k = order[chunk], None if sym is None else sym[chunk]
+            if cfg.angle_pair_weight:  # each slice and its next-angle neighbour under the same symmetry
+                index = np.concatenate([index, train_set.angle_neighbour(index)])
+                k = None if k is None else np.tile(k, 2)
+            x, y = train_set.batch(index, k)
             pred = model(x)
             weight = level_set_weight(y, cfg.level_set_weight, width) if cfg.level_set_weight else None
             loss = relative_l2(pred, y, weight)
+            if cfg.angle_pair_weight:
+                loss = loss + cfg.angle_pair_weight * angle_difference_l2(pred, y)
             if not torch.isfinite(loss):
                 raise TrainingDiverged(f"loss became {loss.item()} in epoch {epoch + 1}, step {step}; "
                                        f"last good checkpoint: {cfg.out}.train.safetensors (try a lower --lr)")
@@ -148,7 +164,7 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
             torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
             opt.step()
             sched.step()
-            losses.append(loss.item() if weight is None else relative_l2(pred.detach(), y).item())
+            losses.append(relative_l2(pred.detach(), y).item())  # the plain metric, whatever the loss
         test_loss = evaluate_slices(model, test_set, cfg.seed)
         history.append({"epoch": epoch + 1, "train_rel_l2": float(np.mean(losses)), "test_rel_l2": test_loss,
                         "wall_s": time.perf_counter() - t0})
@@ -156,13 +172,28 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
             print(f"epoch {epoch + 1}: train rel. L2 {np.mean(losses):.4f}, test (slices) {test_loss:.4f}, "
                   f"{history[-1]['wall_s']:.0f} s", file=sys.stderr)
         _save_state(cfg, model, opt, epoch + 1, history, card)
+    base_wall_s = (card["training"].get("init") or {}).get("wall_s") or 0.0  # a fine-tune's time includes its base's
     card["training"].update(epochs_done=len(history), history=history,
-                            wall_s=round(sum(h["wall_s"] for h in history), 1),
+                            wall_s=round(sum(h["wall_s"] for h in history) + base_wall_s, 1),
                             peak_rss_mb=round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024))
     card["metrics"] = {"train_rel_l2_slices": history[-1]["train_rel_l2"] if history else math.nan,
                        "test_rel_l2_slices": history[-1]["test_rel_l2"] if history else math.nan}
     weights, _ = checkpoint.save(cfg.out, {f"model.{k}": v for k, v in model.state_dict().items()}, card)
     return weights
+
+
+def _initial_weights(stem: str, model: torch.nn.Module, spec) -> dict:
+    """Load a trained model's weights into ``model`` (same architecture and inputs); its card."""
+    base, card = checkpoint.load_model(stem, average=False)
+    as_json = lambda d: json.loads(json.dumps(d))  # noqa: E731 - compare as stored in cards
+    if card["kind"] != model.kind or card["config"] != as_json(model.config):
+        raise ValueError(f"--init {stem} is a {card['kind']} with config {card['config']}; pass the same --model and "
+                         f"--model-config (got {model.kind} {model.config})")
+    if card["inputs"] != as_json(spec.as_dict()):
+        raise ValueError(f"--init {stem} was trained on other inputs ({card['inputs']['channels']}, window scale "
+                         f"{card['inputs']['value_scale']} m) than these datasets give")
+    model.load_state_dict(base.state_dict())
+    return card
 
 
 def _resume(cfg: TrainConfig, model, opt, sched, steps_per_epoch: int) -> tuple[int, list]:
@@ -217,7 +248,9 @@ def _card(cfg: TrainConfig, model, spec, folders: list[Path], tested: list[Path]
         "training": {"epochs": cfg.epochs, "slices_per_epoch": cfg.slices_per_epoch, "batch": cfg.batch,
                      "lr": cfg.lr, "weight_decay": cfg.weight_decay, "seed": cfg.seed,
                      "loss": "relative L2" + (f", weight 1 + {cfg.level_set_weight} exp(-(V/{cfg.level_set_width} m)^2)"
-                                              if cfg.level_set_weight else ""),
+                                              if cfg.level_set_weight else "")
+                     + (f" + {cfg.angle_pair_weight} x relative L2 of V(theta_k+1) - V(theta_k)"
+                        if cfg.angle_pair_weight else ""),
                      "augment": "D4 symmetries (slices.symmetry)" if cfg.augment else None,
                      "threads": torch.get_num_threads()},
         "epsilon": None,

@@ -73,3 +73,10 @@ def test_failed_write_keeps_the_previous_file(tmp_path):
         write_solution(path, problem.grid, problem.target, problem.target, {"n": object()})  # not JSON
     assert read_solution(path)[3] == {"n": 1}
     assert [p.name for p in tmp_path.iterdir()] == ["s.h5"]
+
+
+def test_train_refuses_a_missing_base_model_before_writing(ci_data, tmp_path):
+    out = hjrno("train", "--data", str(ci_data), "--epochs", "1", "--angle-pair-weight", "1", "--init",
+                str(tmp_path / "none"), "--out", str(tmp_path / "m"), "--quiet")
+    assert out.returncode == 2 and "none.json not found" in out.stderr and "Traceback" not in out.stderr
+    assert not list(tmp_path.glob("m*"))

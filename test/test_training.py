@@ -14,7 +14,15 @@ from hjrno_ros import checkpoint, dataset, evaluation
 from hjrno_ros.dynamics import DynamicDubinsCar
 from hjrno_ros.geometry import Polygon
 from hjrno_ros.grids import car_grid
-from hjrno_ros.slices import SliceSet, level_set_weight, relative_l2, spec_for, symmetry
+from hjrno_ros.slices import (
+    SliceSet,
+    SliceUnion,
+    angle_difference_l2,
+    level_set_weight,
+    relative_l2,
+    spec_for,
+    symmetry,
+)
 from hjrno_ros.solver import solve
 from hjrno_ros.training import TrainConfig, TrainingDiverged, train
 from hjrno_ros.value_function import LearnedValueFunction
@@ -212,6 +220,40 @@ def test_level_set_weight_counts_errors_near_zero_more(ci_data, tmp_path):
     assert all(np.isfinite(h["train_rel_l2"]) for h in card["training"]["history"])
     with pytest.raises(ValueError, match="level-set weight"):
         train(TrainConfig(**{**cfg.__dict__, "level_set_width": 0.0}), progress=False)
+
+
+def test_angle_pairs_are_next_angle_neighbours(ci_data):
+    split = dataset.load_split(ci_data / "train.h5")
+    parts = SliceUnion([SliceSet(split, spec_for(split))] * 2)
+    index = np.arange(len(parts))
+    pair = parts.angle_neighbour(index)
+    x, xn = (parts.batch(i)[0].numpy() for i in (index, pair))
+    np.testing.assert_array_equal(xn[:, 0], x[:, 0])  # same V0 slice
+    np.testing.assert_array_equal(xn[:, 1], x[:, 1])  # same speed
+    turn = np.arctan2(xn[:, 3, 0, 0], xn[:, 2, 0, 0]) - np.arctan2(x[:, 3, 0, 0], x[:, 2, 0, 0])
+    np.testing.assert_allclose(np.cos(turn), np.cos(split.grid.spacings[3]), atol=1e-5)  # next angle, wrapping
+    assert (pair // (len(parts) // 2) == index // (len(parts) // 2)).all()  # within the same dataset
+    target = torch.tensor([0.0, 1.0, 1.0, 3.0])[:, None]  # slices (0, 1), their pairs (1, 3): changes 1, 2
+    assert angle_difference_l2(torch.tensor([0.0, 1.0, 1.0, 2.0])[:, None], target).item() == pytest.approx(0.25)
+
+
+def test_fine_tuning_starts_from_a_model_and_adds_the_angle_pair_loss(trained, ci_data, tmp_path):
+    cfg, base = trained
+    tuned = TrainConfig(data=str(ci_data), model_config=SMALL, epochs=1, slices_per_epoch=256, lr=1e-3,
+                        out=str(tmp_path / "tuned"), init=str(base), angle_pair_weight=1.0)
+    train(tuned, progress=False)
+    card = checkpoint.load_card(tmp_path / "tuned")
+    assert card["training"]["init"]["model"] == str(base) and card["training"]["init"]["command"] == "test"
+    assert "V(theta_k+1) - V(theta_k)" in card["training"]["loss"]
+    own = sum(h["wall_s"] for h in card["training"]["history"])
+    assert card["training"]["wall_s"] == pytest.approx(own + checkpoint.load_card(base)["training"]["wall_s"], abs=0.1)
+    first_epoch_from_scratch = checkpoint.load_card(base)["training"]["history"][0]["train_rel_l2"]
+    assert card["training"]["history"][0]["train_rel_l2"] < 0.8 * first_epoch_from_scratch  # it did start trained
+    with pytest.raises(ValueError, match="same --model"):
+        train(TrainConfig(**{**tuned.__dict__, "model_config": {**SMALL, "width": 12}, "out": str(tmp_path / "x")}),
+              progress=False)
+    with pytest.raises(ValueError, match="even batch"):
+        train(TrainConfig(**{**tuned.__dict__, "batch": 15}), progress=False)
 
 
 def test_metrics_are_right_on_known_tables():
