@@ -5,7 +5,7 @@ V(θ_{k+1}) − V(θ_{k−1}) with the ground truth's on states near the zero le
 (|V_gt| < BAND m, where the filter acts) whose true difference is not negligible.
 
     .venv/bin/python benchmarks/theta_difference.py models/default out/models/X \\
-        --data data/indoor32c,data/single32 > benchmarks/results/theta_difference/NAME.txt
+        --data data/indoor32c,data/single32 > benchmarks/results/theta_difference/NAME.md
 """
 
 import argparse

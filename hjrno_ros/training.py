@@ -185,15 +185,19 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
 def _initial_weights(stem: str, model: torch.nn.Module, spec) -> dict:
     """Load a trained model's weights into ``model`` (same architecture and inputs); its card."""
     base, card = checkpoint.load_model(stem, average=False)
-    as_json = lambda d: json.loads(json.dumps(d))  # noqa: E731 - compare as stored in cards
-    if card["kind"] != model.kind or card["config"] != as_json(model.config):
+    if card["kind"] != model.kind or card["config"] != _as_stored(model.config):
         raise ValueError(f"--init {stem} is a {card['kind']} with config {card['config']}; pass the same --model and "
                          f"--model-config (got {model.kind} {model.config})")
-    if card["inputs"] != as_json(spec.as_dict()):
+    if card["inputs"] != _as_stored(spec.as_dict()):
         raise ValueError(f"--init {stem} was trained on other inputs ({card['inputs']['channels']}, window scale "
                          f"{card['inputs']['value_scale']} m) than these datasets give")
     model.load_state_dict(base.state_dict())
     return card
+
+
+def _as_stored(d: dict) -> dict:
+    """``d`` as a JSON model card stores it (tuples become lists), for comparisons with a loaded card."""
+    return json.loads(json.dumps(d))
 
 
 def _resume(cfg: TrainConfig, model, opt, sched, steps_per_epoch: int) -> tuple[int, list]:
@@ -202,7 +206,7 @@ def _resume(cfg: TrainConfig, model, opt, sched, steps_per_epoch: int) -> tuple[
         return 0, []
     card = checkpoint.load_card(stem)
     resume = card.get("resume", {})
-    if resume.get("key") != json.loads(json.dumps(cfg.resume_key())):
+    if resume.get("key") != _as_stored(cfg.resume_key()):
         raise ValueError(f"{stem}.json was made with other settings; delete it or choose another --out")
     tensors = checkpoint.load_tensors(stem)
     model.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")})
