@@ -18,14 +18,19 @@ BAND = 0.3  # m: |V_gt| below this counts as near the zero level set
 MIN_DIFF = 0.01  # m: true central differences smaller than this have no reliable sign
 
 
+def step(a: np.ndarray, shift: int) -> np.ndarray:
+    """V(θ_{k+shift}) − V(θ_k) on a (Nx, Ny, Nv, Nθ) table, periodic in θ."""
+    return np.roll(a, -shift, 3) - a
+
+
 def scores(pred: list[np.ndarray], solved: list[held_out.Solved]) -> tuple[float, float, int]:
     """(rel. L2 of the forward θ-difference, sign agreement near V = 0, states scored) over a folder."""
     num = den = 0.0
     agree = total = 0
     for p, s in zip(pred, solved, strict=True):
-        dp, dg = np.roll(p, -1, 3) - p, np.roll(s.value, -1, 3) - s.value
+        dp, dg = step(p, 1), step(s.value, 1)
         num, den = num + float(((dp - dg) ** 2).sum()), den + float((dg**2).sum())
-        cp, cg = np.roll(p, -1, 3) - np.roll(p, 1, 3), np.roll(s.value, -1, 3) - np.roll(s.value, 1, 3)
+        cp, cg = dp - step(p, -1), dg - step(s.value, -1)  # V(θ_{k+1}) − V(θ_{k−1})
         near = (np.abs(s.value) < BAND) & (np.abs(cg) > MIN_DIFF)
         agree, total = agree + int((np.sign(cp[near]) == np.sign(cg[near])).sum()), total + int(near.sum())
     return float(np.sqrt(num / max(den, 1e-12))), agree / max(total, 1), total

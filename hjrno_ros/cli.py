@@ -321,7 +321,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--level-set-width", type=float, default=0.2, help="width of that weight in metres (default 0.2)")
     p.add_argument("--angle-pair-weight", type=float, default=0.0, help="add this weight times the rel. L2 of V's "
                    "change to the next grid angle (the sign of dV/dtheta picks the safe turn); half of each batch "
-                   "is then the other halves' angle neighbours (default 0: off)")
+                   "is then the other half's angle neighbours (default 0: off)")
     p.add_argument("--init", default=None, help="start from this model stem's weights (fine-tuning; fresh "
                    "optimiser and schedule, same --model and --model-config)")
     p.add_argument("--quiet", action="store_true")

@@ -158,14 +158,9 @@ class SliceUnion:
         return int(self.offsets[-1])
 
     def angle_neighbour(self, index: np.ndarray) -> np.ndarray:
-        """:meth:`SliceSet.angle_neighbour` of each slice, within its own dataset."""
-        index = np.asarray(index)
-        part = np.searchsorted(self.offsets, index, side="right") - 1
-        out = np.empty_like(index)
-        for k in np.unique(part):
-            sel = part == k
-            out[sel] = self.parts[k].angle_neighbour(index[sel] - self.offsets[k]) + self.offsets[k]
-        return out
+        """:meth:`SliceSet.angle_neighbour` of each slice, within its own dataset: the parts share one
+        grid, so every offset is a whole number of angle cycles and one part's rule serves all."""
+        return self.parts[0].angle_neighbour(index)
 
     def batch(self, index: np.ndarray, sym: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         index = np.asarray(index)

@@ -130,6 +130,7 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
     width = cfg.level_set_width / spec.value_scale  # the loss weight's width in normalised target units
     start = time.perf_counter()
     spent_before = sum(h["wall_s"] for h in history)
+    per_step = cfg.batch // 2 if cfg.angle_pair_weight else cfg.batch  # drawn slices; the rest: their pairs
     from tqdm import tqdm
 
     for epoch in range(start_epoch, cfg.epochs):
@@ -138,7 +139,6 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
             break
         t0 = time.perf_counter()
         rng = np.random.default_rng([cfg.seed, epoch])
-        per_step = cfg.batch // 2 if cfg.angle_pair_weight else cfg.batch  # drawn slices; the rest: their pairs
         order = rng.integers(0, len(train_set), steps_per_epoch * per_step)
         sym = rng.integers(0, 8, len(order)) if cfg.augment else None
         model.train()
