@@ -371,7 +371,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "(default: fno=models/default)")
     p.add_argument("--data", default=None, help="dataset folders, comma-separated (default: the first model "
                    "card's); worlds are the second halves of their test splits")
-    p.add_argument("--part", default="fresh", choices=["fresh", "calibration", "all"])
+    p.add_argument("--part", default="fresh", choices=["fresh", "calibration", "all"],
+                   help="held-out scenarios to run: the fresh half of each test split (default), the calibration "
+                   "half, or all of them (a folder of one scenario too)")
     p.add_argument("--allow-unconverged", action="store_true", help="also use test scenarios whose solve did not "
                    "meet the convergence tolerance (their ground truth is approximate)")
     p.add_argument("--episodes", type=int, default=500, help="at least this many episodes per filter")

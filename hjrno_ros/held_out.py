@@ -31,9 +31,8 @@ class Solved:
 
 
 def load(folders: list[str | Path], part: str = "fresh", unconverged: bool = False) -> list[Solved]:
-    """Converged (with ``unconverged``: all) test-split scenarios of the dataset folders, restricted to ``part``."""
-    from .calibration import held_out_halves
-
+    """Converged (with ``unconverged``: all) test-split scenarios of the dataset folders, restricted to ``part``
+    (``all`` takes every one, so a folder of a single scenario can be simulated)."""
     if part not in PARTS:
         raise ValueError(f"part must be one of {PARTS}, got {part!r}")
     out = []
@@ -41,14 +40,21 @@ def load(folders: list[str | Path], part: str = "fresh", unconverged: bool = Fal
         split = load_split(Path(folder) / "test.h5", converged_only=not unconverged)
         if split.grid.ndim != 4:
             raise ValueError(f"{folder}: closed-loop and calibration need car datasets, not {split.config.family}")
-        try:
-            calib, fresh = held_out_halves(len(split.scenarios))
-        except ValueError as err:  # name the folder: the user passes several, or the card's
-            raise ValueError(f"{folder}: {err}; leave it out with --data") from None
-        chosen = {"calibration": calib, "fresh": fresh, "all": calib + fresh}[part]
+        chosen = list(range(len(split.scenarios))) if part == "all" else _half(folder, len(split.scenarios), part)
         out += [Solved(f"{split.config.name}/{split.scenarios[i].seed}", split.scenarios[i], split.grid,
                        split.target[i], split.value[i]) for i in chosen]
     return out
+
+
+def _half(folder: str | Path, n: int, part: str) -> list[int]:
+    """The calibration or fresh half of a test split of ``n`` scenarios; ValueError naming the folder."""
+    from .calibration import held_out_halves
+
+    try:
+        calib, fresh = held_out_halves(n)
+    except ValueError as err:  # name the folder: the user passes several, or the card's
+        raise ValueError(f"{folder}: {err}; leave it out with --data") from None
+    return calib if part == "calibration" else fresh
 
 
 def has_halves(folder: str | Path, unconverged: bool = False) -> bool:

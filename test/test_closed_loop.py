@@ -214,7 +214,8 @@ def test_held_out_halves_and_unconverged_worlds(ci_data, trained, tmp_path):
     try:
         one_left = re.escape(f"{ci_data}: calibration needs at least 2 held-out scenarios")  # one converged left
         with pytest.raises(ValueError, match=one_left):
-            held_out.load([ci_data], "all")
+            held_out.load([ci_data], "fresh")
+        assert [s.name for s in held_out.load([ci_data], "all")] == [held_out.load([ci_data], "all", True)[1].name]
         assert len(held_out.load([ci_data], "all", unconverged=True)) == 2
         assert not held_out.has_halves(ci_data) and held_out.has_halves(ci_data, unconverged=True)
         # calibrate/simulate without --data: the card's folder that cannot be halved is left out
