@@ -46,7 +46,7 @@ Outputs besides the command:
   bypassed, ``reason``, ``value`` (V at the state, m), ``robot`` (the state used), ``epsilon``,
   ``inference_latency_ms``, ``filter_ms`` (time in the command callback), ages of odometry, map and
   value, ``dropped`` counters (cmd, odom, pose, map), ``counts``, ``value_grid`` (frame, origin,
-  resolution, size, centre, v, θ of the published slice), ``last_map_error``, ``model``.
+  resolution, size, centre, v, θ and ``inflation_radius`` of the published slice), ``last_map_error``, ``model``.
 * ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, 1 Hz): OK (ok, intervening), WARN (bypassed),
   ERROR (fail_closed); message = reason; the status fields as key-values.
 
@@ -145,6 +145,9 @@ PARAMETERS: dict[str, tuple[Any, str, dict]] = {
     "occupied_threshold": (50, "occupancy >= threshold is an obstacle",
                            {"integer_range": [IntegerRange(from_value=0, to_value=100, step=1)]}),
     "unknown_is_obstacle": (True, "unknown cells (-1) and space beyond the map are obstacles", {}),
+    "inflation_radius": (-1.0, "m: obstacles grown by this much before inference (V0 = signed distance - radius); "
+                               "-1 = h/sqrt(2) of the model grid (makes the grid's V0 conservative); for a robot "
+                               "of radius rho set rho + h/sqrt(2)", {"floating_point_range": _float_range(-1.0, 5.0)}),
     "inference_rate": (10.0, "Hz: how often the inference thread checks whether to recompute",
                        {"floating_point_range": _float_range(0.1, 100.0)}),
     "recenter_distance": (1.0, "m: recompute when the robot is this far from the window centre",
@@ -177,6 +180,9 @@ def validate_parameters(cfg: dict[str, Any], startup: bool = False) -> str | Non
     for name in ("map_timeout", "stop_pub_timeout", "speed_tolerance"):
         if not (math.isfinite(cfg[name]) and cfg[name] >= 0):
             return f"{name} must be finite and >= 0, got {cfg[name]}"
+    r = cfg["inflation_radius"]
+    if not (math.isfinite(r) and (r >= 0 or r == -1.0)):
+        return f"inflation_radius must be finite and >= 0, or -1 (h/sqrt(2) of the model grid), got {r}"
     if not 0 <= cfg["occupied_threshold"] <= 100:
         return f"occupied_threshold must lie in 0..100, got {cfg['occupied_threshold']}"
     if cfg["inference_threads"] < 1:
@@ -503,6 +509,11 @@ class BrtNode(Node):
         self._grid_shape = (int(round(wx / h)) + 1, int(round(wy / h)) + 1)
         self._grid_resolution = h
 
+    def _inflation(self, radius: float) -> float:
+        """The inflation in metres: ``radius``, or h/√2 of the model's x-y grid for -1
+        (see dataset.ExperimentConfig.target)."""
+        return float(radius) if radius >= 0 else float(max(self._vf.grid.spacings[:2]) / math.sqrt(2))
+
     def _effective_epsilon(self, eps: float) -> float:
         if eps >= 0:
             return float(eps)
@@ -540,7 +551,7 @@ class BrtNode(Node):
         self._cfg = cfg
         if "control_period" in names:
             self._control_timer.timer_period_ns = int(cfg["control_period"] * 1e9)
-        if names & {"occupied_threshold", "unknown_is_obstacle"}:
+        if names & {"occupied_threshold", "unknown_is_obstacle", "inflation_radius"}:
             self._sd_dirty = True
             self._wake.set()
         self.get_logger().info("parameters updated: " + ", ".join(f"{p.name}={p.value}" for p in params))
@@ -793,6 +804,8 @@ class BrtNode(Node):
         center = (state.x, state.y)
         outside = -m.resolution if m.unknown_is_obstacle else None
         v0 = geometry.sample_raster(m.sd, m.origin, m.resolution, self._vf.window_points(center), outside=outside)
+        inflation = self._inflation(cfg["inflation_radius"])
+        v0 -= np.float32(inflation)
         v = min(max(state.v, p.v_min), p.v_max)
         table = self._vf.local_table(v0, center, v, state.theta)
         latency = 1e3 * (time.perf_counter() - start)
@@ -802,7 +815,7 @@ class BrtNode(Node):
         h = self._grid_resolution
         info = {"frame_id": m.frame_id, "origin": [float(nodes[0, 0, 0] - h / 2), float(nodes[0, 0, 1] - h / 2)],
                 "resolution": h, "width": self._grid_shape[0], "height": self._grid_shape[1], "v": v,
-                "theta": state.theta, "center": list(center)}
+                "theta": state.theta, "center": list(center), "inflation_radius": inflation}
         self._value = ValueData(table, center, v, state.theta, time.monotonic(), m.version, latency, info)
         self._inference_error = ""
         with self._lock:
@@ -810,7 +823,8 @@ class BrtNode(Node):
         self._publish_value(values, info, m, state)
 
     def _rebuild_signed_distance(self, cfg: dict[str, Any]) -> None:
-        """Occupancy threshold or unknown handling changed: recompute the current map's signed distance."""
+        """Occupancy threshold, unknown handling or inflation changed: recompute the current map's signed
+        distance (and with the new map version, the value)."""
         m = self._map
         threshold, unknown = int(cfg["occupied_threshold"]), bool(cfg["unknown_is_obstacle"])
         sd = geometry.occupancy_signed_distance(m.occupancy, m.resolution, threshold, unknown).astype(np.float32)

@@ -91,7 +91,8 @@ def cmd_generate(args: argparse.Namespace) -> int:
     from . import dataset
 
     config = dataset.load_config(args.experiment, args.config)
-    overrides = (("grid", args.grid), ("n_train", args.n_train), ("n_test", args.n_test), ("seed", args.seed))
+    overrides = (("grid", args.grid), ("n_train", args.n_train), ("n_test", args.n_test), ("seed", args.seed),
+                 ("inflation", args.inflation))
     changes = {k: v for k, v in overrides if v is not None}
     if changes:
         config = dataclasses.replace(config, **changes)
@@ -282,6 +283,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--n-test", type=int, default=None, help="override the number of test samples")
     p.add_argument("--seed", type=int, default=None, help="override the config's seed: sample i uses seed + i, "
                    "so another seed gives new scenarios")
+    p.add_argument("--inflation", type=float, default=None, help="m: solve for obstacles grown by this much "
+                   "(target l - inflation; car families; h/sqrt(2) of the grid makes it conservative)")
     p.add_argument("--shard", default=None, help="K/N: only samples with index mod N == K")
     p.add_argument("--workers", type=int, default=1, help="solver processes (default 1)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

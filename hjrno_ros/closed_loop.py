@@ -74,6 +74,15 @@ class Episodes:
     noise: np.ndarray
 
 
+def has_safe_states(grid, values: np.ndarray, settings: EpisodeSettings) -> bool:
+    """Whether any grid node where :func:`draw_episodes` places starts has V ≥ ``start_margin``
+    (a room too tight for the car under the disturbance has none: it cannot stay safe forever)."""
+    axes = [np.asarray(grid.axis(i)) for i in range(2)]
+    inner = [(a >= lo + settings.edge_margin) & (a <= hi - settings.edge_margin)
+             for a, lo, hi in zip(axes, grid.lo[:2], grid.hi[:2], strict=True)]
+    return bool((values[np.ix_(inner[0], inner[1])] >= settings.start_margin).any())
+
+
 def draw_episodes(world: World, n: int, settings: EpisodeSettings, seed: int, first: int = 0) -> Episodes:
     """``n`` episodes with starts in the true safe set; episode ``first + i`` alternates controller
     (even: goal, odd: straight) and disturbance (pairs: random, worst)."""

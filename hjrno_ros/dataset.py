@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import math
 import os
 import sys
 import threading
@@ -32,6 +33,7 @@ import numpy as np
 import yaml
 
 from . import versions
+from .grids import GridSpec
 from .h5store import atomic_h5
 from .scenarios import FAMILIES, Scenario, make_scenario, parametric_test_diagonal, parametric_train_grid
 from .solver import ACCURACIES, CRITERIA, solve
@@ -41,7 +43,8 @@ SPLIT_FORMAT = "hjrno-dataset-1"
 SPLITS = ("train", "test")
 TEST_SEED_OFFSET = 1_000_000  # test samples never share a seed with training samples
 _SOLVER_KEYS = {"accuracy", "tolerance", "max_horizon", "criterion", "chunk"}
-_CONFIG_KEYS = {"name", "family", "grid", "n_train", "n_test", "seed", "options", "solver", "parametric_grid"}
+_CONFIG_KEYS = {"name", "family", "grid", "n_train", "n_test", "seed", "options", "solver", "parametric_grid",
+                "inflation"}
 
 
 def _fail(message: str) -> None:
@@ -61,6 +64,7 @@ class ExperimentConfig:
     options: dict = dataclasses.field(default_factory=dict)  # fixed scenario options for every sample
     solver: dict = dataclasses.field(default_factory=dict)  # keyword arguments of solver.solve
     parametric_grid: int = 10  # parametric family: train on an n x n lattice of (a_max, kappa_max)
+    inflation: float = 0.0  # m: car targets are l − inflation (obstacles grown by it; see :meth:`target`)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "grid", tuple(int(v) for v in self.grid))
@@ -84,6 +88,10 @@ class ExperimentConfig:
             _fail(f"experiment {self.name!r}: solver accuracy must be one of {ACCURACIES}")
         if self.solver.get("criterion", "interior") not in CRITERIA:
             _fail(f"experiment {self.name!r}: solver criterion must be one of {CRITERIA}")
+        if not (isinstance(self.inflation, int | float) and math.isfinite(self.inflation) and self.inflation >= 0):
+            _fail(f"experiment {self.name!r}: inflation must be a finite number of metres >= 0, got {self.inflation!r}")
+        if self.inflation and FAMILIES[self.family].kind == "air3d":
+            _fail(f"experiment {self.name!r}: inflation applies to car families, not {self.family}")
         make_scenario(self.family, self.seed, **self.options)  # unknown or bad options fail here, early
 
     def count(self, split: str) -> int:
@@ -92,6 +100,8 @@ class ExperimentConfig:
     def as_dict(self) -> dict:
         d = dataclasses.asdict(self)
         d["grid"] = list(self.grid)
+        if not self.inflation:
+            d.pop("inflation")  # configs without it keep the digests they always had
         return d
 
     def digest(self) -> str:
@@ -112,6 +122,15 @@ class ExperimentConfig:
                 a, k = parametric_test_diagonal(self.n_test, rng)[index]
             options.update(a_max=a, kappa_max=k)
         return make_scenario(self.family, seed, **options)
+
+    def target(self, scenario: Scenario, grid: GridSpec) -> np.ndarray:
+        """The solver's target: l on ``grid``, minus ``inflation`` for the car.
+
+        l sampled at grid nodes and interpolated in between overestimates the exact clearance near
+        obstacles smaller than a cell or at convex corners (by up to h/√2 for cells of side h, since
+        l is 1-Lipschitz): V∞ then comes out > 0 inside such obstacles.  Subtracting h/√2 makes the
+        interpolated target ≤ the exact clearance everywhere (README, "Inflation")."""
+        return scenario.target(grid) - np.float32(self.inflation)
 
 
 def config_dir() -> Path:
@@ -153,7 +172,7 @@ def sample_path(root: Path, split: str, index: int) -> Path:
 def solve_sample(config: ExperimentConfig, split: str, index: int) -> tuple[Scenario, np.ndarray, np.ndarray, Any]:
     scenario = config.scenario(split, index)
     grid = scenario.grid(config.grid)
-    target = scenario.target(grid)
+    target = config.target(scenario, grid)
     value, report = solve(scenario.dynamics(), grid, target, **config.solver)
     return scenario, target, value, report
 
@@ -386,7 +405,6 @@ class Split:
 def load_split(path: str | Path, converged_only: bool = False,
                warn: Callable[[str], None] = lambda m: print(m, file=sys.stderr)) -> Split:
     """Read a consolidated split; ValueError when the file is not one or is damaged."""
-    from .grids import GridSpec
 
     try:
         with h5py.File(path, "r") as f:

@@ -245,7 +245,7 @@ def superresolution(stems: list[str | Path], data: str | Path, factor: int = 3, 
     fine = base.with_shape((factor * (base.shape[0] - 1) + 1, factor * (base.shape[1] - 1) + 1, *base.shape[2:]))
     truths = []
     for scenario in test.scenarios[:samples]:
-        target = scenario.target(fine)
+        target = test.config.target(scenario, fine)
         value, report = solve(scenario.dynamics(), fine, target, **test.config.solver)
         truths.append((scenario, target, value, report.wall_time))
     rows = []
@@ -256,7 +256,7 @@ def superresolution(stems: list[str | Path], data: str | Path, factor: int = 3, 
         for scenario, target, value, _ in truths:
             params = sample_params(spec, scenario)
             high = predict_table(model, spec, fine, target, params)
-            low = predict_table(model, spec, base, scenario.target(base), params)
+            low = predict_table(model, spec, base, test.config.target(scenario, base), params)
             up = RegularGridInterpolator((base.axis(0), base.axis(1)), low)  # trailing (v, θ) axes ride along
             pts = np.stack(np.meshgrid(fine.axis(0), fine.axis(1), indexing="ij"), -1)
             up_table = up(pts.reshape(-1, 2)).reshape(fine.shape)

@@ -76,6 +76,14 @@ def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, s
     solved = held_out.load(folders, part, unconverged)
     if not solved:
         raise ValueError(f"no converged held-out scenarios in {folders} ({part})")
+    usable = [closed_loop.has_safe_states(s.grid, s.value, settings) for s in solved]
+    skipped = {s.name: f"no state with V_gt >= {settings.start_margin} m: no safe start exists"
+               for s, ok in zip(solved, usable, strict=True) if not ok}
+    for name, why in skipped.items():
+        progress(f"skipping world {name}: {why}")
+    solved = [s for s, ok in zip(solved, usable, strict=True) if ok]
+    if not solved:
+        raise ValueError(f"no held-out world in {folders} ({part}) has a safe start")
     cards = {label: checkpoint.load_card(stem) for label, stem in models.items()}
     choices = default_filters(cards, truth_epsilon)
     if filters:
@@ -104,7 +112,8 @@ def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, s
              else c.kind, **closed_loop.summarize(results[c.name])} for c in choices]
     collided = {c.name: [int((r["outcome"] == "collision").sum()) for r in results[c.name]] for c in choices}
     where = {name: {s.name: n for s, n in zip(solved, counts, strict=True) if n} for name, counts in collided.items()}
-    return {"rows": rows, "worlds": [s.name for s in solved], "episodes_per_world": per_world,
+    return {"rows": rows, "worlds": [s.name for s in solved], "skipped_worlds": skipped,
+            "episodes_per_world": per_world,
             "map_inference_ms": 1e3 * infer_s, "settings": dataclasses.asdict(settings),
             "stop_zone": dataclasses.asdict(stop), "models": {k: str(v) for k, v in models.items()},
             "seed": seed, "truth_epsilon": truth_epsilon, "qp_decay_rate": decay_rate,
@@ -137,7 +146,8 @@ def write_tables(study: dict, out: Path, command: str) -> tuple[Path, Path, Path
           f"{study['episodes_per_world']} episodes each; duration {study['settings']['duration']} s, "
           f"dt {study['settings']['dt']} s; controllers alternate goal / straight, disturbance alternates "
           "random / worst-case (ground-truth gradient), ‖d‖ ≤ d_max.  Learned maps: "
-          f"{study['map_inference_ms']:.0f} ms per world for the whole (v, θ) table (all models).", "",
+          f"{study['map_inference_ms']:.0f} ms per world for the whole (v, θ) table (all models).",
+          *[f"Skipped {w}: {why}." for w, why in study.get("skipped_worlds", {}).items()], "",
           *lines, "", *check_targets(rows), "", "Collisions by world (HJ filters):",
           *[f"- {name}: {', '.join(f'{w} ({n})' for w, n in worlds.items())}"
             for name, worlds in study["collisions_by_world"].items() if worlds and name not in ("none", "stop_zone")]]

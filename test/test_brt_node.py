@@ -248,6 +248,37 @@ def test_parameter_updates_are_validated(ros):
     assert driver.set_param("epsilon", eps)[0]
 
 
+def test_inflation_radius_grows_obstacles_live(ros):
+    """Any model's V ≤ V0 (clamped), so with obstacles grown by r every published V ≤ sd − r, and cells
+    closer than r to the wall become lethal; a negative radius other than -1 (auto) is refused."""
+    driver, _ = ros
+    _, node = ros
+    settle(driver, 3.5, 0.0, 0.5, 0.0)  # 1.5 m from the wall (NEAR_WALL is the next test's: a new window there)
+    h = max(node._vf.grid.spacings[:2])  # the default -1: h/√2 of the model grid
+    assert node.get_parameter("inflation_radius").value == -1.0
+    assert driver.status["value_grid"]["inflation_radius"] == pytest.approx(h / math.sqrt(2))
+    sd = geometry.occupancy_signed_distance(occupancy(), RES)
+    r = 0.5
+    assert driver.set_param("inflation_radius", r) == (True, "")
+    try:
+        assert wait_for(lambda: driver.status["value_grid"]["inflation_radius"] == r, 10.0)
+        for _ in range(2):  # messages published after the new table was in place
+            driver.grid = driver.values = None
+            assert wait_for(lambda: driver.grid is not None and driver.values is not None, 5.0)
+        grid, values = driver.grid, np.asarray(driver.values.data, float)
+        h, (ox, oy) = grid.info.resolution, (grid.info.origin.position.x, grid.info.origin.position.y)
+        ix, iy = np.meshgrid(np.arange(grid.info.width), np.arange(grid.info.height), indexing="xy")
+        centres = np.stack([ox + (ix.ravel() + 0.5) * h, oy + (iy.ravel() + 0.5) * h], -1)  # x fastest
+        v0 = geometry.sample_raster(sd, ORIGIN, RES, centres, outside=-RES)
+        assert np.all(values <= v0 - r + 1e-4), (values - (v0 - r)).max()
+        ring = (v0 > 0) & (v0 < r)  # free cells within r of an obstacle
+        assert ring.any() and np.all(np.asarray(grid.data)[ring] == 100)
+        ok, reason = driver.set_param("inflation_radius", -0.1)
+        assert not ok and "inflation_radius" in reason
+    finally:
+        assert driver.set_param("inflation_radius", -1.0)[0]
+
+
 def ground_truth_control(node: BrtNode, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(u*, ∇V) at ``state`` from a converged solve on a 24x24x7x12 grid of the same window (~7 s)."""
     from hjrno_ros.dynamics import DynamicDubinsCar, car_optimal_control
@@ -261,6 +292,7 @@ def ground_truth_control(node: BrtNode, state: np.ndarray) -> tuple[np.ndarray, 
     grid = car_grid((24, 24, 7, 12), lo, hi, (vf.params.v_min, vf.params.v_max))
     sd = geometry.occupancy_signed_distance(occupancy(), RES)
     l0 = geometry.sample_raster(sd, ORIGIN, RES, grid.states()[:, :, 0, 0, :2], outside=-RES)
+    l0 -= node._inflation(node.get_parameter("inflation_radius").value)  # the obstacles the node sees
     target = np.broadcast_to(l0[:, :, None, None], grid.shape).astype(np.float32)
     values, _ = solve(DynamicDubinsCar(vf.params), grid, target, accuracy="medium", max_horizon=20.0)
     grad = ValueTable(grid, values).gradient(state)[0]

@@ -229,3 +229,28 @@ def test_held_out_halves_and_unconverged_worlds(ci_data, trained, tmp_path):
     finally:
         with h5py.File(ci_data / "test.h5", "r+") as f:
             f["converged"][...] = flags
+
+
+def test_worlds_without_a_safe_start_are_skipped_with_a_note(ci_data, tmp_path):
+    """A map too tight for the car (V∞ < start margin everywhere) cannot host an episode that any filter
+    could win: the study leaves it out and says so; with no usable world at all it refuses."""
+    import h5py
+
+    from hjrno_ros import filter_study
+
+    folder = tmp_path / "tight"
+    shutil.copytree(ci_data, folder)
+    with h5py.File(folder / "test.h5", "r+") as f:
+        f["value"][0] = -1.0
+    names = [s.name for s in held_out.load([folder], "all")]
+    settings = EpisodeSettings(duration=2.0)
+    study = filter_study.run_study([str(folder)], {}, episodes=4, part="all", settings=settings,
+                                   filters=["ground_truth"], progress=lambda m: None)
+    assert study["worlds"] == names[1:] and list(study["skipped_worlds"]) == names[:1]
+    assert "no safe start" in study["skipped_worlds"][names[0]]
+    assert all(r["episodes"] == 4 for r in study["rows"])
+    with h5py.File(folder / "test.h5", "r+") as f:
+        f["value"][1] = -1.0
+    with pytest.raises(ValueError, match="has a safe start"):
+        filter_study.run_study([str(folder)], {}, episodes=4, part="all", settings=settings,
+                               filters=["ground_truth"], progress=lambda m: None)

@@ -86,6 +86,23 @@ def test_seed_override_gives_new_scenarios(ci_run, tmp_path):
     assert not np.array_equal(train.target[0], dataset.load_split(ci_run / "train.h5").target[0])
 
 
+def test_inflation_solves_for_grown_obstacles(ci_run, tmp_path):
+    """--inflation r: the target is l − r exactly, V∞ lies below the plain one and is lower by about r
+    near the obstacle; configs without inflation keep their digest (model cards name datasets by it)."""
+    out = hjrno("generate", "--experiment", "ci", "--n-train", "1", "--n-test", "0", "--inflation", "0.25",
+                "--out", str(tmp_path / "inflated"), "--quiet")
+    assert out.returncode == 0, out.stderr
+    grown, plain = dataset.load_split(tmp_path / "inflated" / "train.h5"), dataset.load_split(ci_run / "train.h5")
+    assert grown.config.inflation == 0.25 and grown.scenarios[0].seed == plain.scenarios[0].seed
+    np.testing.assert_array_equal(grown.target[0], plain.target[0] - np.float32(0.25))
+    assert np.all(grown.value[0] <= plain.value[0] + 1e-4)
+    near = np.abs(plain.value[0]) < 0.2
+    assert near.any() and np.median(plain.value[0][near] - grown.value[0][near]) > 0.2
+    assert dataset.ExperimentConfig(**{**CI.as_dict(), "inflation": 0.0}).digest() == CI.digest()
+    assert "inflation" not in CI.as_dict() and grown.config.digest() != dataset.ExperimentConfig(
+        **{**grown.config.as_dict(), "inflation": 0.0}).digest()
+
+
 def test_shards_merge_into_the_same_dataset(ci_run, tmp_path):
     a, b = tmp_path / "a", tmp_path / "b"
     for k, folder in ((0, a), (1, b)):
@@ -118,6 +135,8 @@ def test_corrupt_sample_is_redone_and_changed_config_refused(ci_run, tmp_path):
     ({"solver": {"accuracy": "best"}}, "accuracy"),
     ({"family": "parametric", "n_train": 200}, "lattice"),
     ({"bogus": 1}, "unknown key"),
+    ({"inflation": -0.1}, "inflation"),
+    ({"family": "air3d", "grid": [11, 11, 11], "inflation": 0.1}, "inflation applies to car families"),
 ])
 def test_bad_configs_fail_with_one_line_and_clobber_nothing(tmp_path, changes, message):
     root = tmp_path / "out"

@@ -121,3 +121,22 @@ def test_car_grid_axes_follow_the_convention():
     assert s.shape == (10, 8, 5, 6, 4)
     assert s[1, 0, 0, 0, 0] > s[0, 0, 0, 0, 0] and s[0, 1, 0, 0, 1] > s[0, 0, 0, 0, 1]
     assert g.axis(3)[0] == pytest.approx(-np.pi) and g.axis(3)[-1] < np.pi
+
+
+def test_grid_target_minus_half_cell_diagonal_is_conservative():
+    """l sampled at grid nodes and interpolated overestimates the exact clearance near a clutter box
+    smaller than a cell (room indoor/3000313 on the 32 x 32 datasets' grid: V∞ came out > 0 inside it);
+    since l is 1-Lipschitz, l − h/√2 interpolates below the exact clearance everywhere."""
+    from hjrno_ros.scenarios import make_scenario
+    from hjrno_ros.value_table import ValueTable
+
+    room = make_scenario("indoor", 3000313)
+    grid = room.grid((32, 32, 3, 4))
+    h = max(grid.spacings[:2])
+    xs = np.linspace(-5, 5, 301)
+    pts = np.stack(np.meshgrid(xs, xs, indexing="ij"), -1).reshape(-1, 2)
+    states = np.column_stack([pts, np.full(len(pts), 0.5), np.zeros(len(pts))])
+    exact = geo.union_sdf(room.shapes, pts)
+    excess = {r: ValueTable(grid, room.target(grid) - np.float32(r)).value(states) - exact for r in (0.0, h / 2 ** 0.5)}
+    assert excess[0.0][exact <= 0].max() > 0.15  # free in the table, inside an obstacle in fact
+    assert excess[h / 2 ** 0.5].max() <= 1e-5
