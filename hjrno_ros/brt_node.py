@@ -510,9 +510,8 @@ class BrtNode(Node):
         self._grid_resolution = h
 
     def _inflation(self, radius: float) -> float:
-        """The inflation in metres: ``radius``, or h/√2 of the model's x-y grid for -1
-        (see dataset.ExperimentConfig.target)."""
-        return float(radius) if radius >= 0 else float(max(self._vf.grid.spacings[:2]) / math.sqrt(2))
+        """The inflation in metres: ``radius``, or for -1 half the model grid's x-y cell diagonal (h/√2)."""
+        return float(radius) if radius >= 0 else self._vf.grid.half_cell_diagonal
 
     def _effective_epsilon(self, eps: float) -> float:
         if eps >= 0:

@@ -127,9 +127,9 @@ class ExperimentConfig:
         """The solver's target: l on ``grid``, minus ``inflation`` for the car.
 
         l sampled at grid nodes and interpolated in between overestimates the exact clearance near
-        obstacles smaller than a cell or at convex corners (by up to h/√2 for cells of side h, since
-        l is 1-Lipschitz): V∞ then comes out > 0 inside such obstacles.  Subtracting h/√2 makes the
-        interpolated target ≤ the exact clearance everywhere (README, "Inflation")."""
+        obstacles smaller than a cell or at convex corners (by up to ``grid.half_cell_diagonal``, h/√2
+        for cells of side h, since l is 1-Lipschitz): V∞ then comes out > 0 inside such obstacles.
+        Subtracting that makes the interpolated target ≤ the exact clearance everywhere (README, "Inflation")."""
         return scenario.target(grid) - np.float32(self.inflation)
 
 
@@ -405,7 +405,6 @@ class Split:
 def load_split(path: str | Path, converged_only: bool = False,
                warn: Callable[[str], None] = lambda m: print(m, file=sys.stderr)) -> Split:
     """Read a consolidated split; ValueError when the file is not one or is damaged."""
-
     try:
         with h5py.File(path, "r") as f:
             if f.attrs.get("format") != SPLIT_FORMAT:

@@ -50,6 +50,13 @@ class GridSpec:
             for i, (a, b, k) in enumerate(zip(self.lo, self.hi, self.shape, strict=False))
         )
 
+    @property
+    def half_cell_diagonal(self) -> float:
+        """Half the diagonal of an x-y cell, m: the most by which the multilinear interpolation of a
+        1-Lipschitz function of (x, y), such as the signed distance l, exceeds the function itself
+        (h/√2 for square cells of side h).  Inflating by it makes a grid's target conservative."""
+        return float(np.hypot(*self.spacings[:2]) / 2)
+
     def axis(self, i: int) -> np.ndarray:
         """Coordinates of the nodes along axis ``i``."""
         return np.linspace(self.lo[i], self.hi[i], self.shape[i], endpoint=i not in self.periodic)

@@ -251,10 +251,9 @@ def test_parameter_updates_are_validated(ros):
 def test_inflation_radius_grows_obstacles_live(ros):
     """Any model's V ≤ V0 (clamped), so with obstacles grown by r every published V ≤ sd − r, and cells
     closer than r to the wall become lethal; a negative radius other than -1 (auto) is refused."""
-    driver, _ = ros
-    _, node = ros
+    driver, node = ros
     settle(driver, 3.5, 0.0, 0.5, 0.0)  # 1.5 m from the wall (NEAR_WALL is the next test's: a new window there)
-    h = max(node._vf.grid.spacings[:2])  # the default -1: h/√2 of the model grid
+    h = max(node._vf.grid.spacings[:2])  # the default -1: h/√2 of the model grid (square cells)
     assert node.get_parameter("inflation_radius").value == -1.0
     assert driver.status["value_grid"]["inflation_radius"] == pytest.approx(h / math.sqrt(2))
     sd = geometry.occupancy_signed_distance(occupancy(), RES)

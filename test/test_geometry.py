@@ -132,11 +132,12 @@ def test_grid_target_minus_half_cell_diagonal_is_conservative():
 
     room = make_scenario("indoor", 3000313)
     grid = room.grid((32, 32, 3, 4))
-    h = max(grid.spacings[:2])
+    r = grid.half_cell_diagonal
+    assert r == pytest.approx(max(grid.spacings[:2]) / 2 ** 0.5)  # square cells: h/√2
     xs = np.linspace(-5, 5, 301)
     pts = np.stack(np.meshgrid(xs, xs, indexing="ij"), -1).reshape(-1, 2)
     states = np.column_stack([pts, np.full(len(pts), 0.5), np.zeros(len(pts))])
     exact = geo.union_sdf(room.shapes, pts)
-    excess = {r: ValueTable(grid, room.target(grid) - np.float32(r)).value(states) - exact for r in (0.0, h / 2 ** 0.5)}
-    assert excess[0.0][exact <= 0].max() > 0.15  # free in the table, inside an obstacle in fact
-    assert excess[h / 2 ** 0.5].max() <= 1e-5
+    plain, inflated = (ValueTable(grid, room.target(grid) - np.float32(c)).value(states) - exact for c in (0.0, r))
+    assert plain[exact <= 0].max() > 0.15  # free in the table, inside an obstacle in fact
+    assert inflated.max() <= 1e-5
