@@ -124,7 +124,8 @@ PARAMETERS: dict[str, tuple[Any, str, dict]] = {
                          _RO),
     "value_topic": ("brt/value", "V slice in metres, Float32MultiArray (row-major, x fastest)", _RO),
     "status_topic": ("brt/status", "JSON status (std_msgs/String, 10 Hz)", _RO),
-    "model_path": ("", "model stem or .json/.safetensors path; '' = the bundled models/default", _RO),
+    "model_path": ("", "model stem or .json/.safetensors path, or the name of a bundled model (v5_frames6); "
+                       "'' = the bundled models/default", _RO),
     "device": ("", "torch device for inference: '' = cuda when available else cpu, or cpu, cuda, cuda:N", _RO),
     "inference_threads": (1, "torch CPU threads for inference (keeps cores free for the command path)",
                           {"read_only": True, "integer_range": [IntegerRange(from_value=1, to_value=64, step=1)]}),
@@ -190,8 +191,8 @@ def validate_parameters(cfg: dict[str, Any], startup: bool = False) -> str | Non
     return None
 
 
-def bundled_model_candidates() -> list[Path]:
-    """Where the bundled model is looked for: the source checkout, then the package's share folder
+def bundled_model_candidates(name: str = "default") -> list[Path]:
+    """Where the bundled model ``name`` is looked for: the source checkout, then the package's share folder
     (ament index via AMENT_PREFIX_PATH, the install prefix this module lives in, sys.prefix)."""
     here = Path(__file__).resolve()
     shares = []
@@ -207,19 +208,22 @@ def bundled_model_candidates() -> list[Path]:
     if here.parents[1].name == "site-packages":  # <prefix>/lib/pythonX.Y/site-packages/hjrno_ros/brt_node.py
         shares.append(here.parents[4] / "share" / "hjrno_ros")
     shares.append(Path(sys.prefix) / "share" / "hjrno_ros")
-    candidates = [here.parents[1] / "models" / "default"] + [share / "models" / "default" for share in shares]
+    candidates = [here.parents[1] / "models" / name] + [share / "models" / name for share in shares]
     return list(dict.fromkeys(candidates))
 
 
 def resolve_model(model_path: str) -> Path:
-    """The model stem to load; StartupError when the bundled model is missing."""
-    if model_path:
+    """The model stem to load: a path to a model, or the name of a bundled one ('' = ``default``,
+    e.g. ``v5_frames6``); StartupError when no such bundled model is found."""
+    if model_path and ("/" in model_path or checkpoint.paths(Path(model_path).expanduser())[1].is_file()):
         return Path(model_path).expanduser()
-    for stem in bundled_model_candidates():
+    name = model_path or "default"
+    for stem in bundled_model_candidates(name):
         if checkpoint.paths(stem)[1].is_file():
             return stem
-    looked = ", ".join(str(p) for p in bundled_model_candidates())
-    raise StartupError(f"no bundled model found (looked for {looked}); set the model_path parameter")
+    looked = ", ".join(str(p) for p in bundled_model_candidates(name))
+    raise StartupError(f"no bundled model {name!r} found (looked for {looked}); set the model_path parameter "
+                       "to a model stem")
 
 
 def _lower_thread_priority(nice: int) -> None:

@@ -125,23 +125,27 @@ def error_rates(pred: list[np.ndarray], truth: list[np.ndarray], epsilon: float)
 
 def calibrate_model(stem, folders: list, alpha: float, beta: float, n: int, seed: int = 0,
                     margin: float = DEFAULT_MARGIN, write: bool = True, unconverged: bool = False,
-                    average: bool | None = None) -> dict:
+                    average: bool | None = None, frames: list | None = None) -> dict:
     """Calibrate ε on the first half of the test splits, measure on the second, write it into the card
     (``unconverged``: also use scenarios whose solve missed the tolerance; recorded in the card).
     ``average`` (None: the card's setting) calibrates the symmetry-averaged model or the plain one and
-    records that choice in the card with ε, since ε only holds for the predictions it was measured on."""
+    records that choice in the card with ε, since ε only holds for the predictions it was measured on;
+    ``frames`` (None: the card's) likewise for an ensemble's member frames (checkpoint.framed_members)."""
     from . import checkpoint, held_out
 
     calib, fresh = (held_out.load(folders, part, unconverged) for part in ("calibration", "fresh"))
-    averaged = bool(checkpoint.load_card(stem).get("symmetry_average", False) if average is None else average)
-    pred = held_out.predict(stem, calib + fresh, averaged)
+    card = checkpoint.load_card(stem)
+    averaged = bool(card.get("symmetry_average", False) if average is None else average)
+    frames = card.get("member_frames") if frames is None else frames
+    pred = held_out.predict(stem, calib + fresh, averaged, frames=frames or [])  # [] = none, not the card's
     result = calibrate(pred[:len(calib)], [s.value for s in calib], alpha, beta, n, seed, margin)
     pred_fresh, truth_fresh = pred[len(calib):], [s.value for s in fresh]
     entry = {**result.as_dict(), "seed": seed, "data": [str(f) for f in folders], "unconverged_allowed": unconverged,
-             "symmetry_average": averaged,
+             "symmetry_average": averaged, "member_frames": frames or None,
              "calibration_scenarios": [s.name for s in calib], "fresh_scenarios": [s.name for s in fresh],
              "fresh_before": error_rates(pred_fresh, truth_fresh, 0.0),
              "fresh_after": error_rates(pred_fresh, truth_fresh, result.epsilon)}
     if write:
-        checkpoint.update_card(stem, {"epsilon": result.epsilon, "symmetry_average": averaged, "calibration": entry})
+        checkpoint.update_card(stem, {"epsilon": result.epsilon, "symmetry_average": averaged,
+                                      "member_frames": frames or None, "calibration": entry})
     return entry

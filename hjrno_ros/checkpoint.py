@@ -84,12 +84,13 @@ def load_tensors(stem: str | Path) -> dict[str, torch.Tensor]:
         raise ValueError(f"{weights} is not a readable safetensors file ({str(err).splitlines()[0]})") from None
 
 
-def load_model(stem: str | Path, device: str | torch.device = "cpu", average: bool | None = None
-               ) -> tuple[torch.nn.Module, dict]:
+def load_model(stem: str | Path, device: str | torch.device = "cpu", average: bool | None = None,
+               frames: list | None = None) -> tuple[torch.nn.Module, dict]:
     """(model in eval mode, card) from a safetensors + JSON pair; ValueError on anything else.
 
     ``average``: wrap the model in :class:`~hjrno_ros.operators.average.SymmetryAverage`
-    (default: as the card's ``symmetry_average`` says, which ``hjrno calibrate`` records)."""
+    (default: as the card's ``symmetry_average`` says, which ``hjrno calibrate`` records);
+    ``frames``: an ensemble's member frames (:func:`framed_members`; default: the card's ``member_frames``)."""
     from .operators import build_model
 
     card = load_card(stem)
@@ -99,13 +100,33 @@ def load_model(stem: str | Path, device: str | torch.device = "cpu", average: bo
     if set(tensors) != set(expected) or any(tensors[k].shape != expected[k].shape for k in expected):
         raise ValueError(f"{paths(stem)[0]} does not match the architecture in its model card")
     model.load_state_dict(tensors)
+    frames = card.get("member_frames") if frames is None else frames
+    if frames:
+        framed_members(model, {**card, "member_frames": frames}, paths(stem)[1])
     if card.get("symmetry_average", False) if average is None else average:
         model = symmetry_averaged(model, card, paths(stem)[1])
     return model.to(device).eval(), card
 
 
-def symmetry_averaged(model: torch.nn.Module, card: dict, source: Path) -> torch.nn.Module:
-    """``model`` averaged over the square's symmetries; ValueError unless it is a car model on a square window."""
+def framed_members(model: torch.nn.Module, card: dict, source: Path) -> None:
+    """The card's ``member_frames`` (one list of D4 elements per ensemble member, as in
+    :func:`hjrno_ros.slices.symmetry`): each member predicts in those frames and is averaged over
+    them, so members err in different frames at the cost of one pass per listed element."""
+    frames = card["member_frames"]
+    members = getattr(model, "members", None)
+    if card["kind"] != "ensemble" or not isinstance(frames, list) or len(frames) != len(members):
+        raise ValueError(f"{source}: member_frames needs an ensemble and one list per member, got {frames!r}")
+    for i, ks in enumerate(frames):
+        if (not isinstance(ks, list) or not ks or len(set(ks)) != len(ks)
+                or not all(isinstance(k, int) and not isinstance(k, bool) and 0 <= k < 8 for k in ks)):
+            raise ValueError(f"{source}: member_frames[{i}] must be distinct D4 elements 0..7, got {ks!r}")
+        members[i] = symmetry_averaged(members[i], card, source, tuple(ks))
+
+
+def symmetry_averaged(model: torch.nn.Module, card: dict, source: Path,
+                      elements: tuple[int, ...] = tuple(range(8))) -> torch.nn.Module:
+    """``model`` averaged over the square's symmetries (or ``elements`` of them); ValueError unless it is
+    a car model on a square window."""
     from .operators.average import SymmetryAverage
 
     channels = card["inputs"].get("channels", [])
@@ -115,4 +136,4 @@ def symmetry_averaged(model: torch.nn.Module, card: dict, source: Path) -> torch
     if shape[0] != shape[1] or abs((hi[0] - lo[0]) - (hi[1] - lo[1])) > 1e-9:
         raise ValueError(f"{source}: symmetry averaging needs a square x-y window, this one has {shape[0]} x "
                          f"{shape[1]} nodes over {hi[0] - lo[0]:g} m x {hi[1] - lo[1]:g} m")
-    return SymmetryAverage(model, channels.index("cos_theta"), channels.index("sin_theta"))
+    return SymmetryAverage(model, channels.index("cos_theta"), channels.index("sin_theta"), elements=elements)

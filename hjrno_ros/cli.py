@@ -33,6 +33,16 @@ def _shape(text: str) -> tuple[int, ...]:
     return shape
 
 
+def _frames(text: str) -> list[list[int]]:
+    """'0,5;1,6;3,4' -> [[0, 5], [1, 6], [3, 4]]; 'none' -> [] (no member frames)."""
+    if text.strip().lower() == "none":
+        return []
+    try:
+        return [[int(k) for k in part.split(",")] for part in text.split(";")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"member frames must look like 0,5;1,6;3,4 or none, got {text!r}") from None
+
+
 def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
@@ -153,7 +163,7 @@ def cmd_ensemble(args: argparse.Namespace) -> int:
     from . import model_ensemble
 
     command = "hjrno " + " ".join(shlex.quote(a) for a in sys.argv[1:])
-    weights = model_ensemble.combine(args.model, args.out, command)
+    weights = model_ensemble.combine(args.model, args.out, command, pessimism=args.pessimism)
     print(f"wrote {weights} and {Path(args.out).name}.json ({len(args.model)} members); "
           f"calibrate it before use: hjrno calibrate --model {args.out}")
     return 0
@@ -204,7 +214,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     folders = _data_folders(args.data, args.model, args.allow_unconverged)
     entry = calibrate_model(args.model, folders, args.alpha, args.beta, args.draws, args.seed, args.margin,
                             write=not args.dry_run, unconverged=args.allow_unconverged,
-                            average=args.symmetry_average)
+                            average=args.symmetry_average, frames=args.member_frames)
     before, after = entry["fresh_before"], entry["fresh_after"]
     print(f"epsilon = {entry['epsilon']:.4f} m (margin {entry['margin']:g} m, alpha {args.alpha}, beta {args.beta}, "
           f"n {entry['n']}, rank {entry['rank']}, {entry['scenarios']} calibration scenarios from "
@@ -232,7 +242,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                                    EpisodeSettings(duration=args.duration),
                                    filters=args.filters.split(",") if args.filters else None,
                                    progress=(lambda m: None) if args.quiet else print,
-                                   unconverged=args.allow_unconverged,
+                                   unconverged=args.allow_unconverged, inflation_at=args.inflation_at,
                                    **({"decay_rate": args.decay_rate} if args.decay_rate else {}))
     out = Path(args.out)
     command = "hjrno " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("hjrno") else "hjrno simulate ..."
@@ -333,6 +343,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("ensemble", help="save trained models as one whose output is their mean (then calibrate it)")
     p.add_argument("--model", action="append", required=True, help="member model stem (repeat, at least 2; same "
                    "inputs and datasets)")
+    p.add_argument("--pessimism", type=float, default=0.0, help="k >= 0: output mean - k * std of the members "
+                   "(lower where they disagree; default 0, the mean)")
     p.add_argument("--out", required=True, help="model stem of the ensemble")
     p.set_defaults(func=cmd_ensemble)
 
@@ -367,6 +379,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="average the model over the window's 8 symmetries (exactly equivariant, 8x inference "
                    "cost) or not; recorded in the card with epsilon, so evaluate, simulate and the node use it "
                    "(default: the card's setting)")
+    p.add_argument("--member-frames", type=_frames, default=None,
+                   help="ensembles: the D4 elements (0-7, slices.symmetry) each member predicts in, averaged per "
+                   "member, e.g. '0,5;1,6;3,4' (one pass per element); recorded in the card with epsilon "
+                   "(default: the card's; 'none' clears)")
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("simulate", help="closed-loop episodes: collisions and interventions per safety filter")
@@ -386,6 +402,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--filters", default=None, help="only filters whose names start with these, comma-separated")
     p.add_argument("--decay-rate", type=float, default=None,
                    help="qp mode: dV/dt >= -rate (V - eps), 1/s (default: the node's, 4)")
+    p.add_argument("--inflation-at", default="input", choices=["input", "output"],
+                   help="datasets solved with --inflation r: the models read l - r, as brt_node feeds them "
+                   "(default), or read l with r taken off their output (exact for the true operator)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     p.add_argument("--out", default="benchmarks/results", help="results folder")

@@ -26,19 +26,20 @@ from .slices import InputSpec
 
 @torch.no_grad()
 def predict_table(model, spec: InputSpec, grid, target: np.ndarray, params: np.ndarray | None = None,
-                  batch: int = 64) -> np.ndarray:
-    """V_pred on the whole grid of one sample (l given on the same grid), in metres."""
+                  batch: int = 64, shift: float = 0.0) -> np.ndarray:
+    """V_pred on the whole grid of one sample (l given on the same grid), in metres; with ``shift`` r the
+    model runs on target + r and r comes off its output (``held_out.INFLATION_AT``)."""
     angle_axis = grid.ndim - 1
     rest = grid.shape[2:]
     index = np.stack(np.unravel_index(np.arange(int(np.prod(rest))), rest), -1)
     out = np.empty(grid.shape, np.float32)
     for i in range(0, len(index), batch):
         sl = index[i:i + batch]
-        v0 = np.stack([target[(slice(None), slice(None), *s)] for s in sl])
+        v0 = np.stack([target[(slice(None), slice(None), *s)] for s in sl]) + np.float32(shift)
         v = grid.axis(2)[sl[:, 0]] if spec.kind == "car" else np.zeros(len(sl))
         angle = grid.axis(angle_axis)[sl[:, -1]]
         p = None if params is None else np.repeat(params[None], len(sl), 0)
-        pred = model(spec.inputs(v0, v, angle, p))[:, 0].numpy() * spec.value_scale
+        pred = model(spec.inputs(v0, v, angle, p))[:, 0].numpy() * spec.value_scale - np.float32(shift)
         for k, s in enumerate(sl):
             out[(slice(None), slice(None), *s)] = pred[k]
     return out

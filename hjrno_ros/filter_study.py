@@ -69,8 +69,10 @@ def make_filter(choice: FilterChoice, world: World, tables: dict[str, ValueTable
 def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, seed: int = 0,
               truth_epsilon: float = DEFAULT_MARGIN, part: str = "fresh", settings: EpisodeSettings = EpisodeSettings(),
               stop: StopZoneSettings = StopZoneSettings(), filters: list[str] | None = None,
-              progress=print, unconverged: bool = False, decay_rate: float = FilterSettings.decay_rate) -> dict:
-    """Run every filter over ≥ ``episodes`` episodes spread evenly over the held-out worlds."""
+              progress=print, unconverged: bool = False, decay_rate: float = FilterSettings.decay_rate,
+              inflation_at: str = "input") -> dict:
+    """Run every filter over ≥ ``episodes`` episodes spread evenly over the held-out worlds
+    (``inflation_at``: how the learned maps meet the datasets' inflation, ``held_out.INFLATION_AT``)."""
     from . import checkpoint
 
     solved = held_out.load(folders, part, unconverged)
@@ -91,7 +93,7 @@ def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, s
         if not choices:
             raise ValueError(f"--filters {filters} match none of the filters")
     start = time.perf_counter()
-    predicted = {label: held_out.predict(stem, solved) for label, stem in models.items()}
+    predicted = {label: held_out.predict(stem, solved, inflation_at=inflation_at) for label, stem in models.items()}
     infer_s = (time.perf_counter() - start) / max(len(solved), 1)
     per_world = -(-episodes // len(solved))
     results: dict[str, list[dict]] = {c.name: [] for c in choices}
@@ -117,7 +119,7 @@ def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, s
             "map_inference_ms": 1e3 * infer_s, "settings": dataclasses.asdict(settings),
             "stop_zone": dataclasses.asdict(stop), "models": {k: str(v) for k, v in models.items()},
             "seed": seed, "truth_epsilon": truth_epsilon, "qp_decay_rate": decay_rate,
-            "unconverged_worlds_allowed": unconverged,
+            "unconverged_worlds_allowed": unconverged, "inflation_at": inflation_at,
             "collisions_by_world": where, "first_world": solved[0], "traces": traces}
 
 
@@ -146,7 +148,9 @@ def write_tables(study: dict, out: Path, command: str) -> tuple[Path, Path, Path
           f"{study['episodes_per_world']} episodes each; duration {study['settings']['duration']} s, "
           f"dt {study['settings']['dt']} s; controllers alternate goal / straight, disturbance alternates "
           "random / worst-case (ground-truth gradient), ‖d‖ ≤ d_max.  Learned maps: "
-          f"{study['map_inference_ms']:.0f} ms per world for the whole (v, θ) table (all models).",
+          f"{study['map_inference_ms']:.0f} ms per world for the whole (v, θ) table (all models)"
+          + ("; they read l and the datasets' inflation comes off their output (--inflation-at output)."
+             if study.get("inflation_at") == "output" else "."),
           *[f"Skipped {w}: {why}." for w, why in study.get("skipped_worlds", {}).items()], "",
           *lines, "", *check_targets(rows), "", "Collisions by world (HJ filters):",
           *[f"- {name}: {', '.join(f'{w} ({n})' for w, n in worlds.items())}"

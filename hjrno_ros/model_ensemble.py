@@ -1,4 +1,5 @@
-"""``hjrno ensemble``: several trained models saved as one checkpoint whose output is their mean.
+"""``hjrno ensemble``: several trained models saved as one checkpoint whose output is their mean
+(optionally lowered where they disagree, ``--pessimism``).
 
 The members must read the same inputs the same way (input normalisation, window, grid, dynamics)
 and come from the same datasets, so that the card's test splits are held out for every member and
@@ -32,14 +33,15 @@ def _check_alike(cards: list[dict], stems: list[str]) -> None:
         raise ValueError("an ensemble member cannot itself be an ensemble; list its members instead")
 
 
-def combine(stems: list[str], out: str | Path, command: str) -> Path:
-    """Write the ensemble of the models ``stems`` (≥ 2) to ``out``; returns the weights' path."""
+def combine(stems: list[str], out: str | Path, command: str, pessimism: float = 0.0) -> Path:
+    """Write the ensemble of the models ``stems`` (≥ 2) to ``out``, output mean − ``pessimism`` · std
+    (:class:`~hjrno_ros.operators.ensemble.Ensemble`); returns the weights' path."""
     if len(stems) < 2:
         raise ValueError(f"an ensemble needs at least 2 models, got {len(stems)}")
     loaded = [checkpoint.load_model(s, average=False) for s in stems]
     cards = [card for _, card in loaded]
     _check_alike(cards, stems)
-    model = build_model("ensemble", in_channels=cards[0]["config"]["in_channels"],
+    model = build_model("ensemble", in_channels=cards[0]["config"]["in_channels"], pessimism=pessimism,
                         members=[{"kind": c["kind"], "config": c["config"]} for c in cards])
     for member, (trained, _) in zip(model.members, loaded, strict=True):
         member.load_state_dict(trained.state_dict())

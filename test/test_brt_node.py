@@ -483,6 +483,21 @@ def test_missing_model_exits_nonzero_with_one_line():
     assert len(lines) == 1 and "/nonexistent" in lines[0] and "Traceback" not in lines[0], lines
 
 
+def test_bundled_models_resolve_by_name():
+    """model_path may name a bundled model: v5_frames6 loads with each member in its two frames and the ε
+    calibrated that way; an unknown name is one clear error."""
+    from hjrno_ros.brt_node import StartupError, resolve_model
+
+    assert resolve_model("") == ROOT / "models" / "default"
+    stem = resolve_model("v5_frames6")
+    assert stem == ROOT / "models" / "v5_frames6" and resolve_model(str(stem)) == stem
+    model, card = checkpoint.load_model(stem)
+    assert [m.elements for m in model.members] == [(0, 5), (1, 6), (3, 4)]
+    assert card["calibration"]["member_frames"] == card["member_frames"] and card["epsilon"] > 0.1
+    with pytest.raises(StartupError, match="no bundled model 'nope'"):
+        resolve_model("nope")
+
+
 def test_config_yaml_lists_every_parameter_with_its_default():
     import yaml
 

@@ -181,6 +181,33 @@ def test_calibrate_records_symmetry_averaging_in_the_card(trained, tmp_path):
         assert evaluation.evaluate(local)[0]["model"].endswith("D4-averaged)") is averaged
 
 
+def test_calibrate_records_member_frames_in_the_card(trained, tmp_path):
+    """--member-frames: each ensemble member predicts in its listed D4 frames; calibrated that way and
+    recorded with ε, so later loads predict as ε was measured; 'none' clears; a malformed list is refused."""
+    from hjrno_ros import model_ensemble
+
+    _, stem = trained
+    ens = tmp_path / "ens"
+    model_ensemble.combine([str(stem), str(stem)], ens, "test")  # identical members: frames alone differ
+    folders = checkpoint.load_card(ens)["dataset"]["folders"]
+    solved = held_out.load(folders, "all")
+    plain, framed = (held_out.predict(ens, solved, frames=f) for f in ([], [[0], [4]]))
+    assert max(np.abs(p - f).max() for p, f in zip(plain, framed, strict=True)) > 1e-3
+    for flag, frames in (("0;4", [[0], [4]]), ("none", None)):
+        run = subprocess.run([*HJRNO, "calibrate", "--model", str(ens), "--draws", "2000", "--alpha", "0.05",
+                              "--member-frames", flag], capture_output=True, text=True)
+        assert run.returncode == 0, run.stderr
+        card = checkpoint.load_card(ens)
+        assert card["member_frames"] == frames and card["calibration"]["member_frames"] == frames
+        assert card["epsilon"] == calibration.calibrate_model(ens, folders, 0.05, 0.05, 2000, write=False,
+                                                              frames=frames or [])["epsilon"]
+        model, _ = checkpoint.load_model(ens)
+        assert [getattr(m, "elements", None) for m in model.members] == ([(0,), (4,)] if frames else [None, None])
+    run = subprocess.run([*HJRNO, "calibrate", "--model", str(ens), "--member-frames", "0;x", "--dry-run"],
+                         capture_output=True, text=True)
+    assert run.returncode == 2 and "member frames" in run.stderr
+
+
 def test_symmetry_averaging_refuses_a_non_square_window(trained):
     _, stem = trained
     model, card = checkpoint.load_model(stem)

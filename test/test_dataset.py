@@ -87,17 +87,16 @@ def test_seed_override_gives_new_scenarios(ci_run, tmp_path):
 
 
 def test_inflation_solves_for_grown_obstacles(ci_run, tmp_path):
-    """--inflation r: the target is l − r exactly, V∞ lies below the plain one and is lower by about r
-    near the obstacle; configs without inflation keep their digest (model cards name datasets by it)."""
+    """--inflation r: the target is l − r exactly and V∞ is the plain one lowered by r (up to the solver's
+    stopping time); configs without inflation keep their digest (model cards name datasets by it)."""
     out = hjrno("generate", "--experiment", "ci", "--n-train", "1", "--n-test", "0", "--inflation", "0.25",
                 "--out", str(tmp_path / "inflated"), "--quiet")
     assert out.returncode == 0, out.stderr
     grown, plain = dataset.load_split(tmp_path / "inflated" / "train.h5"), dataset.load_split(ci_run / "train.h5")
     assert grown.config.inflation == 0.25 and grown.scenarios[0].seed == plain.scenarios[0].seed
     np.testing.assert_array_equal(grown.target[0], plain.target[0] - np.float32(0.25))
-    assert np.all(grown.value[0] <= plain.value[0] + 1e-4)
-    near = np.abs(plain.value[0]) < 0.2
-    assert near.any() and np.median(plain.value[0][near] - grown.value[0][near]) > 0.2
+    shift = plain.value[0] - grown.value[0]  # V∞[l − r] = V∞[l] − r: the solve commutes with the constant
+    assert np.abs(shift - 0.25).mean() < 2e-3 and np.abs(shift - 0.25).max() < 0.1, np.abs(shift - 0.25).max()
     assert dataset.ExperimentConfig(**{**CI.as_dict(), "inflation": 0.0}).digest() == CI.digest()
     assert "inflation" not in CI.as_dict() and grown.config.digest() != dataset.ExperimentConfig(
         **{**grown.config.as_dict(), "inflation": 0.0}).digest()

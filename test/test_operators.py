@@ -155,6 +155,9 @@ def test_cnn_runs_at_other_resolutions():
                                                      {"kind": "ensemble", "config": {}}]}, "member 1"),
         ("ensemble", {"in_channels": 4, "members": [{"kind": "cnn", "config": {"in_channels": 4}},
                                                      {"kind": "fno", "config": {"in_channels": 3}}]}, "3 input"),
+        ("ensemble", {"in_channels": 4, "pessimism": -1.0, "members": [{"kind": "cnn", "config": {"in_channels": 4}},
+                                                                       {"kind": "cnn", "config": {"in_channels": 4}}]},
+         "pessimism"),
     ],
 )
 def test_bad_config_raises_value_error(kind, config, reason):
@@ -230,3 +233,9 @@ def test_symmetry_average_stacked_passes_equal_one_pass_per_element(batch):
         single = SymmetryAverage(model, 2, 3, max_stack=1)(x)
     assert stacked.shape == (batch, 1, 12, 12)
     torch.testing.assert_close(stacked, single, atol=1e-5, rtol=0)
+    with torch.no_grad():  # the average over D4 is the mean of the one-element "averages"
+        parts = [SymmetryAverage(model, 2, 3, max_stack=8, elements=(k,))(x) for k in range(8)]
+        subset = SymmetryAverage(model, 2, 3, max_stack=8, elements=(1, 6))(x)
+    torch.testing.assert_close(sum(parts) / 8, stacked, atol=1e-5, rtol=0)
+    torch.testing.assert_close(subset, (parts[1] + parts[6]) / 2, atol=1e-5, rtol=0)
+    torch.testing.assert_close(parts[0], model(x), atol=1e-6, rtol=0)

@@ -14,6 +14,7 @@ from hjrno_ros import checkpoint, dataset, evaluation
 from hjrno_ros.dynamics import DynamicDubinsCar
 from hjrno_ros.geometry import Polygon
 from hjrno_ros.grids import car_grid
+from hjrno_ros.operators.average import SymmetryAverage
 from hjrno_ros.slices import (
     SliceSet,
     SliceUnion,
@@ -278,6 +279,29 @@ def test_learned_value_function_gives_value_and_gradient(trained):
         vf.predict(np.full((20, 20), np.nan), np.zeros(1), np.zeros(1))
 
 
+def test_inflation_at_the_output_runs_the_model_on_l(trained, ci_data):
+    """V∞[l − r] = V∞[l] − r (test_dataset checks it on real solves): with ``inflation_at="output"`` the
+    model reads l and r comes off its output; by default ("input", as brt_node) it reads l − r."""
+    from hjrno_ros import held_out
+
+    _, out = trained
+    r = np.float32(0.23)
+    plain = dataset.load_split(ci_data / "train.h5")
+    spec = spec_for(plain)
+    model, _ = checkpoint.load_model(out)
+    with torch.no_grad():
+        base = evaluation.predict_table(model, spec, plain.grid, plain.target[0])
+        lowered = evaluation.predict_table(model, spec, plain.grid, plain.target[0] - r, shift=float(r))
+    np.testing.assert_allclose(lowered, base - r, atol=1e-5)
+    solved = [held_out.Solved("ci/0", plain.scenarios[0], plain.grid, plain.target[0] - r, plain.value[0] - r,
+                              float(r))]
+    at_input, at_output = (held_out.predict(out, solved, inflation_at=m)[0] for m in held_out.INFLATION_AT)
+    np.testing.assert_allclose(at_output, np.minimum(base, plain.target[0]) - r, atol=1e-5)
+    assert np.abs(at_input - at_output).max() > 1e-3
+    with pytest.raises(ValueError, match="inflation_at"):
+        held_out.predict(out, solved, inflation_at="both")
+
+
 def test_learned_value_function_follows_the_cards_symmetry_average(trained, tmp_path):
     """With ``symmetry_average`` in the card, the node's core predicts with the averaged model: a map
     turned a quarter about the window centre, heading turned with it, gives the turned prediction."""
@@ -313,7 +337,8 @@ def test_parametric_diagonal_figure(tmp_path):
 
 
 def test_ensemble_predicts_the_members_mean_and_refuses_unlike_members(trained, ci_data, tmp_path):
-    """``hjrno ensemble``: one checkpoint whose output is the mean of its members', usable like any model."""
+    """``hjrno ensemble``: one checkpoint whose output is the mean of its members' (with ``--pessimism`` k,
+    mean − k·std), usable like any model."""
     from hjrno_ros import model_ensemble
 
     _, fno = trained
@@ -336,6 +361,25 @@ def test_ensemble_predicts_the_members_mean_and_refuses_unlike_members(trained, 
     assert np.isfinite(value.predict(np.hypot(xy[..., 0], xy[..., 1]) - 0.8, np.array([0.5]), np.array([0.3]))).all()
     row = evaluation.evaluate(str(ens), str(ci_data))[0]
     assert row["model"].startswith("ensemble") and 0 < row["test_rel_l2"] < 10
+    from hjrno_ros.cli import main
+
+    assert main(["ensemble", "--model", str(fno), "--model", str(cnn), "--pessimism", "1.5", "--out",
+                 str(tmp_path / "pessimistic")]) == 0
+    low, low_card = checkpoint.load_model(tmp_path / "pessimistic")
+    with torch.no_grad():  # the std of two is half their difference
+        torch.testing.assert_close(low(x), (a(x) + b(x)) / 2 - 1.5 * (a(x) - b(x)).abs() / 2, rtol=0, atol=1e-5)
+    assert low_card["config"]["pessimism"] == 1.5 and card["config"]["pessimism"] == 0.0
+    checkpoint.update_card(ens, {"member_frames": [[0], [2, 5]]})  # the cnn predicts turned and mirrored
+    framed, _ = checkpoint.load_model(ens)
+    b_framed = SymmetryAverage(b, 2, 3, elements=(2, 5))
+    with torch.no_grad():
+        torch.testing.assert_close(framed(x), (a(x) + b_framed(x)) / 2, rtol=0, atol=1e-5)
+        assert (b_framed(x) - b(x)).abs().max() > 1e-3
+    for bad in ([[0]], [[0], [8]], [[0], []], [[0], [1, 1]]):
+        checkpoint.update_card(ens, {"member_frames": bad})
+        with pytest.raises(ValueError, match="member_frames"):
+            checkpoint.load_model(ens)
+    checkpoint.update_card(ens, {"member_frames": None})
 
     with pytest.raises(ValueError, match="at least 2"):
         model_ensemble.combine([str(fno)], tmp_path / "one", "test")

@@ -19,12 +19,15 @@ from torch import Tensor, nn
 
 
 class SymmetryAverage(nn.Module):
-    """``model`` averaged over D4; element k (0..7) as in :func:`hjrno_ros.slices.symmetry`."""
+    """``model`` averaged over D4 (or over ``elements`` of it); element k (0..7) as in
+    :func:`hjrno_ros.slices.symmetry`."""
 
-    def __init__(self, model: nn.Module, cos_channel: int, sin_channel: int, max_stack: int = 16) -> None:
+    def __init__(self, model: nn.Module, cos_channel: int, sin_channel: int, max_stack: int = 16,
+                 elements: tuple[int, ...] = tuple(range(8))) -> None:
         super().__init__()
         self.model, self.cos_channel, self.sin_channel = model, cos_channel, sin_channel
         self.max_stack = max_stack
+        self.elements = tuple(elements)  # a subset averages over those elements only (not equivariant then)
 
     def transform(self, x: Tensor, k: int) -> Tensor:
         """Element k applied to inputs: reflect y (k ≥ 4, θ → −θ), then k mod 4 quarter turns (θ + π/2 each)."""
@@ -46,10 +49,11 @@ class SymmetryAverage(nn.Module):
         """[B, C, N, N] -> [B, 1, N, N]; the x-y grid must be square (same nodes after a quarter turn)."""
         if x.ndim != 4 or x.shape[2] != x.shape[3]:
             raise ValueError(f"symmetry averaging needs a square x-y grid [B, C, N, N], got {tuple(x.shape)}")
-        group = min(8, max(1, self.max_stack // x.shape[0]))  # group elements per forward pass
+        n = len(self.elements)
+        group = min(n, max(1, self.max_stack // x.shape[0]))  # group elements per forward pass
         total = 0.0
-        for first in range(0, 8, group):
-            ks = range(first, min(first + group, 8))
+        for first in range(0, n, group):
+            ks = self.elements[first:first + group]
             outs = self.model(torch.cat([self.transform(x, k) for k in ks])).chunk(len(ks))
             total = total + sum(self.restore(y, k) for k, y in zip(ks, outs, strict=True))
-        return total / 8.0
+        return total / n
