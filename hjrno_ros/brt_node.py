@@ -5,7 +5,7 @@ The only module that imports rclpy.  Data flow (DESIGN.md §1, §6)::
     map (OccupancyGrid, transient local) ─► validate ─► signed distance (once per map)
     odom (Odometry) [+ pose (PoseWithCovarianceStamped, map frame)] ─► state (x, y, v, θ)
     inference thread (inference_rate Hz): window centred on the robot ─► V0 ─► LearnedValueFunction
-        ─► ValueTable over the 3 × 3 (v, θ) stencil, swapped in atomically; value grid + floats
+        ─► ValueTable over the 2 × 2 (v, θ) stencil, swapped in atomically; value grid + floats
     cmd_vel_in (Twist | TwistStamped) ─► V, ∇V at the state ─► safety_filter ─► cmd_vel_out
 
 The command callback never waits for inference: it reads the latest table (one reference), and the
@@ -124,7 +124,7 @@ PARAMETERS: dict[str, tuple[Any, str, dict]] = {
                          _RO),
     "value_topic": ("brt/value", "V slice in metres, Float32MultiArray (row-major, x fastest)", _RO),
     "status_topic": ("brt/status", "JSON status (std_msgs/String, 10 Hz)", _RO),
-    "model_path": ("", "model stem or .json/.safetensors path, or the name of a bundled model (v5_frames6); "
+    "model_path": ("", "model stem or .json/.safetensors path, or the name of a bundled model (v5); "
                        "'' = the bundled models/default", _RO),
     "device": ("", "torch device for inference: '' = cuda when available else cpu, or cpu, cuda, cuda:N", _RO),
     "inference_threads": (1, "torch CPU threads for inference (keeps cores free for the command path)",
@@ -214,7 +214,7 @@ def bundled_model_candidates(name: str = "default") -> list[Path]:
 
 def resolve_model(model_path: str) -> Path:
     """The model stem to load: a path to a model, or the name of a bundled one ('' = ``default``,
-    e.g. ``v5_frames6``); StartupError when no such bundled model is found."""
+    e.g. ``v5``); StartupError when no such bundled model is found."""
     if model_path and ("/" in model_path or checkpoint.paths(Path(model_path).expanduser())[1].is_file()):
         return Path(model_path).expanduser()
     name = model_path or "default"
@@ -371,7 +371,7 @@ class RobotState:
 
 @dataclasses.dataclass(frozen=True)
 class ValueData:
-    table: Any  # ValueTable over the window × 3 × 3 (v, θ) stencil
+    table: Any  # ValueTable over the window × 2 × 2 (v, θ) stencil
     center: tuple[float, float]
     v: float
     theta: float
@@ -798,8 +798,8 @@ class BrtNode(Node):
         val = self._value
         if not (self._inference_error or val is None or val.map_version != m.version
                 or math.hypot(state.x - val.center[0], state.y - val.center[1]) > cfg["recenter_distance"]
-                or abs(state.v - val.v) > self._dv
-                or abs(float(wrap_angle(state.theta - val.theta))) > self._dtheta
+                or abs(state.v - val.v) > 0.5 * self._dv  # the state left the stencil's cell
+                or abs(float(wrap_angle(state.theta - val.theta))) > 0.5 * self._dtheta
                 or now - val.computed > 0.5 * cfg["value_timeout"]):
             return
         start = time.perf_counter()

@@ -34,8 +34,8 @@ class GridSpec:
             raise ValueError(f"grid lo, hi and shape need one entry per axis, got {self.lo}, {self.hi}, {self.shape}")
         if any(not (math.isfinite(a) and math.isfinite(b) and a < b) for a, b in zip(self.lo, self.hi, strict=False)):
             raise ValueError(f"grid bounds must be finite with lo < hi, got lo={self.lo} hi={self.hi}")
-        if any(k < 3 for k in self.shape):
-            raise ValueError(f"every grid axis needs at least 3 nodes, got shape {self.shape}")
+        if any(k < (3 if i in self.periodic else 2) for i, k in enumerate(self.shape)):
+            raise ValueError(f"every grid axis needs at least 2 nodes (periodic: 3), got shape {self.shape}")
         if any(not 0 <= i < n for i in self.periodic):
             raise ValueError(f"periodic axes {self.periodic} out of range for a {n}-D grid")
 

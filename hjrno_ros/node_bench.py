@@ -9,7 +9,7 @@ second.  Measured:
 
 * command → filtered command latency (matched by the stamp the node copies through), p50/p95/p99;
 * map → value grid latency (matched by ``info.map_load_time`` = the map's stamp): DDS transfer of
-  the map, validation, signed distance, V0 sampling, inference over the 3 × 3 stencil, publishing;
+  the map, validation, signed distance, V0 sampling, inference over the 2 × 2 (v, θ) stencil, publishing;
 * the node's CPU share (CPU seconds / wall seconds over the measured window; 1.0 = one core) and
   peak RSS (VmHWM, start-up included);
 * a baseline: the same node bypassed (``~/enable`` false) for up to 10 s more, so the command

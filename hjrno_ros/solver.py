@@ -143,6 +143,8 @@ def solve(
     ("interior" or "band" |V| < ``band``) is below ``tolerance``, or ``max_horizon`` is reached
     (then the report says not converged).  ``progress(t, delta, delta_band)`` is called per chunk.
     """
+    if min(grid.shape) < 3:
+        raise ValueError(f"the solver needs at least 3 nodes per grid axis, got shape {grid.shape}")
     if accuracy not in ACCURACIES:
         raise ValueError(f"accuracy must be one of {ACCURACIES}, got {accuracy!r}")
     if criterion not in CRITERIA:

@@ -484,16 +484,21 @@ def test_missing_model_exits_nonzero_with_one_line():
 
 
 def test_bundled_models_resolve_by_name():
-    """model_path may name a bundled model: v5_frames6 loads with each member in its two frames and the ε
-    calibrated that way; an unknown name is one clear error."""
+    """model_path may name a bundled model: the default loads with each member in its two frames and the ε
+    calibrated that way, ``v5`` is the same weights with one frame per member and its own ε; an unknown
+    name is one clear error."""
     from hjrno_ros.brt_node import StartupError, resolve_model
 
-    assert resolve_model("") == ROOT / "models" / "default"
-    stem = resolve_model("v5_frames6")
-    assert stem == ROOT / "models" / "v5_frames6" and resolve_model(str(stem)) == stem
+    stem = resolve_model("")
+    assert stem == ROOT / "models" / "default" and resolve_model(str(stem)) == stem
     model, card = checkpoint.load_model(stem)
     assert [m.elements for m in model.members] == [(0, 5), (1, 6), (3, 4)]
     assert card["calibration"]["member_frames"] == card["member_frames"] and card["epsilon"] > 0.1
+    plain, plain_card = checkpoint.load_model(resolve_model("v5"))
+    assert resolve_model("v5") == ROOT / "models" / "v5" and "member_frames" not in plain_card
+    assert not any(hasattr(m, "elements") for m in plain.members) and plain_card["epsilon"] != card["epsilon"]
+    pairs = zip(plain.state_dict().values(), model.state_dict().values(), strict=True)
+    assert all(np.array_equal(a.numpy(), b.numpy()) for a, b in pairs)  # the same weights
     with pytest.raises(StartupError, match="no bundled model 'nope'"):
         resolve_model("nope")
 

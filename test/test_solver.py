@@ -173,5 +173,8 @@ def test_bad_solver_options_are_rejected():
         solve(DynamicDubinsCar(), grid, target, accuracy="best")
     with pytest.raises(ValueError, match="states"):
         solve(Air3D(Air3DParams()), grid, target)
-    with pytest.raises(ValueError, match="at least 3 nodes"):
+    with pytest.raises(ValueError, match="at least 2 nodes"):
         car_grid((1, 24, 7, 12))
+    with pytest.raises(ValueError, match="solver needs at least 3 nodes"):
+        small = car_grid((2, 24, 7, 12))
+        solve(DynamicDubinsCar(), small, Disk((0, 0), 1.0).sdf(small.states()[..., :2]))

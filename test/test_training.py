@@ -275,6 +275,16 @@ def test_learned_value_function_gives_value_and_gradient(trained):
     assert np.isfinite(value).all() and grad.shape == (1, 4) and np.isfinite(grad).all()
     v0_at_state = RegularGridInterpolator((xy[:, 0, 0], xy[0, :, 1]), v0)(state[:, :2])[0]
     assert value[0] <= v0_at_state + 1e-6  # V ≤ V0 by construction
+    # the stencil is one (v, θ) cell centred on the state: V there is the mean of its 4 corner slices,
+    # ∂V/∂θ their central difference over one heading step
+    dv, dth = vf.grid.spacings[2:]
+    assert table.grid.shape[2:] == (2, 2) and np.allclose(table.grid.spacings[2:], (dv, dth))
+    assert np.allclose([table.grid.lo[2] + dv / 2, table.grid.lo[3] + dth / 2], [0.5, 0.3])
+    vv, tt = np.meshgrid([0.5 - dv / 2, 0.5 + dv / 2], [0.3 - dth / 2, 0.3 + dth / 2], indexing="ij")
+    corners = [RegularGridInterpolator((xy[:, 0, 0], xy[0, :, 1]), sl)(state[:, :2])[0]
+               for sl in vf.predict(v0, vv.ravel(), tt.ravel())]  # order (v, θ): (lo, lo), (lo, hi), ...
+    assert value[0] == pytest.approx(np.mean(corners), abs=1e-5)
+    assert grad[0, 3] == pytest.approx((corners[1] + corners[3] - corners[0] - corners[2]) / (2 * dth), abs=1e-4)
     with pytest.raises(ValueError, match="finite"):
         vf.predict(np.full((20, 20), np.nan), np.zeros(1), np.zeros(1))
 
