@@ -381,6 +381,15 @@ class ValueData:
     grid_info: dict  # origin/resolution/size of the published value grid
 
 
+def table_state(state: RobotState, table_theta: float, v_lo: float, v_hi: float) -> np.ndarray:
+    """(x, y, v, θ) to look up in a value table whose stencil is centred on heading ``table_theta``: speed
+    clipped to the model's range, heading unwrapped to within π of the centre (the stencil's headings are
+    not wrapped, so −π + 0.05 must read as π + 0.05 beside a table made at π − 0.05, not clamp to its edge)."""
+    s = state.vector(v_lo, v_hi)
+    s[3] = table_theta + float(wrap_angle(s[3] - table_theta))
+    return s
+
+
 @dataclasses.dataclass
 class Counters:
     cmd: int = 0  # non-finite commands dropped
@@ -722,7 +731,7 @@ class BrtNode(Node):
             self._record(safety_filter.stop(math.nan, reason), now, stop=True)
             return
         p = self._vf.params
-        s = state.vector(p.v_min, p.v_max)
+        s = table_state(state, val.theta, p.v_min, p.v_max)
         value = float(val.table.value(s)[0])
         grad = val.table.gradient(s)[0]
         decision = safety_filter.filter_command(p, self._settings, s, value, grad, t.linear.x, t.angular.z)
@@ -865,7 +874,7 @@ class BrtNode(Node):
         value = None
         if state is not None and val is not None:
             p = self._vf.params
-            value = float(val.table.value(state.vector(p.v_min, p.v_max))[0])
+            value = float(val.table.value(table_state(state, val.theta, p.v_min, p.v_max))[0])
         recent = self._last_decision is not None and now - self._last_decision_time <= self._cfg["stop_pub_timeout"]
         if not self._enabled:
             mode, why = "bypassed", "filter bypassed via ~/enable"

@@ -503,6 +503,24 @@ def test_bundled_models_resolve_by_name():
         resolve_model("nope")
 
 
+def test_heading_across_pi_reads_the_stencil_not_its_clamped_edge():
+    """A table made at θ = π − 0.05 holds headings π − 0.05 ± dθ/2 unwrapped; odometry then reports
+    −π + 0.05 (the same heading turned 0.1 rad on): the lookup must use π + 0.05, inside the stencil,
+    not −π + 0.05, which the table would clamp to its lower edge (a heading 0.3 rad off)."""
+    from hjrno_ros.brt_node import RobotState, table_state
+    from hjrno_ros.value_function import LearnedValueFunction
+
+    vf = LearnedValueFunction(ROOT / "models" / "default", device="cpu")
+    center, theta = (0.0, 0.0), math.pi - 0.05
+    xy = vf.window_points(center)
+    v0 = (np.abs(xy[..., 0] + 1.5) - 0.3).astype(np.float32)  # a wall 1.5 m behind the heading π
+    table = vf.local_table(v0, center, 0.8, theta)
+    state = RobotState(0.0, 0.0, 0.8, -math.pi + 0.05, "map", 0, 0.0)
+    s = table_state(state, theta, vf.params.v_min, vf.params.v_max)
+    assert s[3] == pytest.approx(math.pi + 0.05) and table.inside(s, axes=(3,))
+    assert not table.inside(state.vector(vf.params.v_min, vf.params.v_max), axes=(3,))
+
+
 def test_config_yaml_lists_every_parameter_with_its_default():
     import yaml
 
