@@ -34,7 +34,7 @@ def row(name: str, model: torch.nn.Module, batch: int, n: int = 32, channels: in
             "has_cnn": any(isinstance(m, CNN) for m in model.modules())}
 
 
-def main(stems=("models/default", "models/v5_frames6")) -> int:
+def main(stems=("models/v5", "models/default")) -> int:
     torch.set_num_threads(1)
     rows = []
     for stem in stems:
