@@ -2,14 +2,16 @@
 
 The only module that imports rclpy.  Data flow (DESIGN.md §1, §6)::
 
-    map (OccupancyGrid, transient local) ─► validate ─► signed distance (once per map)
+    map (OccupancyGrid, transient local) ─► validate (executor) ─► signed distance (inference thread, once per map)
     odom (Odometry) [+ pose (PoseWithCovarianceStamped, map frame)] ─► state (x, y, v, θ)
     inference thread (inference_rate Hz): window centred on the robot ─► V0 ─► LearnedValueFunction
         ─► ValueTable over the 2 × 2 (v, θ) stencil, swapped in atomically; value grid + floats
     cmd_vel_in (Twist | TwistStamped) ─► V, ∇V at the state ─► safety_filter ─► cmd_vel_out
 
 The command callback never waits for inference: it reads the latest table (one reference), and the
-inference thread runs at a lower scheduling priority, so a busy CPU serves commands first.
+inference thread runs at a lower scheduling priority, so a busy CPU serves commands first.  The
+executor does nothing heavy: the map callback only validates (a 400 × 400 signed distance, ~15 ms,
+would hold up every command queued behind it).
 Everything unknown or stale fails closed (zero velocity), with a reason in ``brt/status`` and
 ``/diagnostics``:
 
@@ -294,7 +296,7 @@ def odometry_message(x: float, y: float, yaw: float, speed: float, frame_id: str
 @dataclasses.dataclass(frozen=True)
 class MapData:
     occupancy: np.ndarray  # int8 [ix, iy]
-    sd: np.ndarray  # signed distance at cell centres, m
+    sd: np.ndarray | None  # signed distance at cell centres, m (None until the inference thread computes it)
     origin: tuple[float, float]  # lower-left corner of cell (0, 0), m
     resolution: float  # m
     frame_id: str
@@ -305,9 +307,9 @@ class MapData:
     unknown_is_obstacle: bool
 
 
-def build_map(msg: OccupancyGrid, version: int, received: float, occupied_threshold: int,
-              unknown_is_obstacle: bool) -> MapData:
-    """Validate an OccupancyGrid and compute its signed distance; MapRejected with a reason."""
+def parse_map(msg: OccupancyGrid, version: int, received: float) -> MapData:
+    """Validate an OccupancyGrid (cheap: the command path's executor runs this); MapRejected with a reason.
+    The signed distance (``sd``) is left None for the inference thread to compute."""
     info = msg.info
     w, h, res = int(info.width), int(info.height), float(info.resolution)
     if w <= 0 or h <= 0:
@@ -326,12 +328,18 @@ def build_map(msg: OccupancyGrid, version: int, received: float, occupied_thresh
     lo, hi = int(occ.min()), int(occ.max())
     if lo < -1 or hi > 100:
         raise MapRejected(f"map values must lie in -1..100, got [{lo}, {hi}]")
+    return MapData(occ, None, (float(p.x), float(p.y)), res, msg.header.frame_id, msg.header.stamp,
+                   received, version, -1, False)
+
+
+def with_signed_distance(m: MapData, occupied_threshold: int, unknown_is_obstacle: bool) -> MapData:
+    """``m`` with its signed distance (tens of ms for a 400 × 400 map: the inference thread's work)."""
     try:
-        sd = geometry.occupancy_signed_distance(occ, res, occupied_threshold, unknown_is_obstacle)
+        sd = geometry.occupancy_signed_distance(m.occupancy, m.resolution, occupied_threshold, unknown_is_obstacle)
     except ValueError as err:
         raise MapRejected(f"signed distance failed: {err}") from None
-    return MapData(occ, sd.astype(np.float32), (float(p.x), float(p.y)), res, msg.header.frame_id, msg.header.stamp,
-                   received, version, occupied_threshold, unknown_is_obstacle)
+    return dataclasses.replace(m, sd=sd.astype(np.float32), occupied_threshold=occupied_threshold,
+                               unknown_is_obstacle=unknown_is_obstacle)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -437,7 +445,8 @@ class BrtNode(Node):
         self._lock = threading.Lock()  # counters and the map version
         self._counts = Counters()
         self._enabled = True
-        self._map: MapData | None = None
+        self._map: MapData | None = None  # with its signed distance; written by the inference thread only
+        self._incoming: MapData | None = None  # validated, signed distance not yet computed
         self._map_version = 0
         self._map_error = ""
         self._odom: OdomSample | None = None
@@ -570,22 +579,25 @@ class BrtNode(Node):
 
     # ------------------------------------------------------------------ inputs
     def _on_map(self, msg: OccupancyGrid) -> None:
-        cfg = self._cfg
+        """Validate and hand over; the signed distance is the inference thread's (keeps commands fast)."""
         with self._lock:
             self._map_version += 1
             version = self._map_version
         try:
-            m = build_map(msg, version, time.monotonic(), int(cfg["occupied_threshold"]),
-                          bool(cfg["unknown_is_obstacle"]))
+            m = parse_map(msg, version, time.monotonic())
         except MapRejected as err:
-            with self._lock:
-                self._counts.map += 1
-            self._map_error = str(err)
-            keep = "keeping the previous map" if self._map is not None else "no map yet: fail-closed"
-            self.get_logger().warning(f"map rejected: {err}; {keep}", throttle_duration_sec=5.0)
+            self._reject_map(err)
             return
-        self._map = m
+        with self._lock:
+            self._incoming = m
         self._wake.set()
+
+    def _reject_map(self, err: MapRejected) -> None:
+        with self._lock:
+            self._counts.map += 1
+        self._map_error = str(err)
+        keep = "keeping the previous map" if self._map is not None else "no map yet: fail-closed"
+        self.get_logger().warning(f"map rejected: {err}; {keep}", throttle_duration_sec=5.0)
 
     def _on_odom(self, msg: Odometry) -> None:
         p, q, v = msg.pose.pose.position, msg.pose.pose.orientation, msg.twist.twist.linear.x
@@ -652,6 +664,8 @@ class BrtNode(Node):
         """(fail-closed reason or "", state, value table) for the command path."""
         cfg, m = self._cfg, self._map
         if m is None:
+            if self._incoming is not None:
+                return "map received, its signed distance is being computed", None, None
             extra = f" ({self._counts.map} rejected, last: {self._map_error})" if self._map_error else ""
             return f"no map received on '{cfg['map_topic']}'{extra}", None, None
         if cfg["map_timeout"] > 0 and now - m.received > cfg["map_timeout"]:
@@ -732,8 +746,8 @@ class BrtNode(Node):
             return
         p = self._vf.params
         s = table_state(state, val.theta, p.v_min, p.v_max)
-        value = float(val.table.value(s)[0])
-        grad = val.table.gradient(s)[0]
+        values, grads = val.table.value_and_gradient(s)
+        value, grad = float(values[0]), grads[0]
         decision = safety_filter.filter_command(p, self._settings, s, value, grad, t.linear.x, t.angular.z)
         if decision.intervened:
             self._cmd_pub.publish(self._command(decision.linear, decision.angular, "", header))
@@ -794,6 +808,7 @@ class BrtNode(Node):
 
     def _inference_step(self) -> None:
         cfg = self._cfg
+        self._install_incoming_map(cfg)
         if self._sd_dirty and self._map is not None:
             self._sd_dirty = False
             self._rebuild_signed_distance(cfg)
@@ -834,18 +849,25 @@ class BrtNode(Node):
             self._counts.inferences += 1
         self._publish_value(values, info, m, state)
 
+    def _install_incoming_map(self, cfg: dict[str, Any]) -> None:
+        """The newest validated map, with its signed distance, becomes the current map."""
+        with self._lock:
+            m, self._incoming = self._incoming, None
+        if m is None:
+            return
+        try:
+            self._map = with_signed_distance(m, int(cfg["occupied_threshold"]), bool(cfg["unknown_is_obstacle"]))
+        except MapRejected as err:
+            self._reject_map(err)
+
     def _rebuild_signed_distance(self, cfg: dict[str, Any]) -> None:
         """Occupancy threshold, unknown handling or inflation changed: recompute the current map's signed
         distance (and with the new map version, the value)."""
-        m = self._map
-        threshold, unknown = int(cfg["occupied_threshold"]), bool(cfg["unknown_is_obstacle"])
-        sd = geometry.occupancy_signed_distance(m.occupancy, m.resolution, threshold, unknown).astype(np.float32)
         with self._lock:
             self._map_version += 1
             version = self._map_version
-        if self._map is m:  # a newer map already used the new settings
-            self._map = dataclasses.replace(m, sd=sd, version=version, occupied_threshold=threshold,
-                                            unknown_is_obstacle=unknown)
+        m = dataclasses.replace(self._map, version=version)
+        self._map = with_signed_distance(m, int(cfg["occupied_threshold"]), bool(cfg["unknown_is_obstacle"]))
 
     def _publish_value(self, values: np.ndarray, info: dict, m: MapData, state: RobotState) -> None:
         nx, ny = values.shape

@@ -63,7 +63,7 @@ def make_filter(choice: FilterChoice, world: World, tables: dict[str, ValueTable
         return lambda s, nominal: stop_zone_filter(stop, world.clearance, s, nominal)
     table = tables[choice.source]
     settings = FilterSettings(epsilon=choice.epsilon, mode=choice.mode, dt=dt, decay_rate=decay_rate)
-    return lambda s, nominal: filter_batch(world.params, settings, s, table.value(s), table.gradient(s), nominal)
+    return lambda s, nominal: filter_batch(world.params, settings, s, *table.value_and_gradient(s), nominal)
 
 
 def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, seed: int = 0,

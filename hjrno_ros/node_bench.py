@@ -119,8 +119,11 @@ def run(out: Path, seconds: float = 30.0, model: Path | None = None) -> int:
         "map_target_met": bool(map_lat) and _percentile_ms(map_lat, 95) <= MAP_TARGET_MS,
     }
     machine = f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
+    model_shown = status.get("model", "bundled model")
+    if os.path.isabs(model_shown) and Path(model_shown).is_relative_to(Path.cwd()):
+        model_shown = os.path.relpath(model_shown)  # results files name no machine's paths
     note = (f"`hjrno bench node` on {machine}, {time.strftime('%Y-%m-%d')}: {seconds:g} s of driving over Fast DDS, "
-            f"node in its own process ({status.get('model', 'bundled model')}), map {SIZE}x{SIZE} cells at "
+            f"node in its own process ({model_shown}), map {SIZE}x{SIZE} cells at "
             f"{RESOLUTION} m republished every 1 s, odometry 50 Hz, TwistStamped commands 20 Hz. Targets: command "
             f"latency p95 <= {CMD_TARGET_MS:g} ms, map -> value grid p95 <= {MAP_TARGET_MS:g} ms. node_cpu_share is "
             "CPU seconds / wall seconds (1.0 = one core); peak RSS includes start-up; callback_p95_ms is the time "

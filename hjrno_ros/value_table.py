@@ -14,7 +14,7 @@ from .grids import GridSpec
 
 
 class ValueTable:
-    """V[i0, i1, ...] on ``grid`` with ``value(states)`` and ``gradient(states)``."""
+    """V[i0, i1, ...] on ``grid`` with ``value(states)``, ``gradient(states)`` and both at once."""
 
     def __init__(self, grid: GridSpec, values: np.ndarray):
         values = np.asarray(values, np.float64)
@@ -28,9 +28,11 @@ class ValueTable:
             [self._unpad(np.gradient(self._padded(values, i), grid.spacings[i], axis=i), i) for i in range(grid.ndim)],
             axis=-1,
         )
-        axes = self._axes_closed()
-        self._v = interpolate.RegularGridInterpolator(axes, self._close(values), bounds_error=False, fill_value=None)
-        self._g = interpolate.RegularGridInterpolator(axes, self._close(grads), bounds_error=False, fill_value=None)
+        # one interpolator over [V, ∂V/∂x0, ...] (linear interpolation is per component): a command's
+        # lookup of V and ∇V costs one call, not two (~0.13 ms each on the node's CPU)
+        stacked = np.concatenate([values[..., None], grads], -1)
+        self._vg = interpolate.RegularGridInterpolator(self._axes_closed(), self._close(stacked), bounds_error=False,
+                                                       fill_value=None)
 
     def _padded(self, a: np.ndarray, axis: int) -> np.ndarray:
         return np.concatenate([a.take([-1], axis), a, a.take([0], axis)], axis) if axis in self.grid.periodic else a
@@ -72,8 +74,13 @@ class ValueTable:
             ok &= (s[..., i] >= self.grid.lo[i]) & (s[..., i] <= self.grid.hi[i])
         return ok
 
+    def value_and_gradient(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """V ``(...)`` and ∇V ``(..., ndim)`` at ``states`` ``(..., ndim)``."""
+        out = self._vg(self._query(states))
+        return out[..., 0], out[..., 1:]
+
     def value(self, states: np.ndarray) -> np.ndarray:
-        return self._v(self._query(states))
+        return self.value_and_gradient(states)[0]
 
     def gradient(self, states: np.ndarray) -> np.ndarray:
-        return self._g(self._query(states))
+        return self.value_and_gradient(states)[1]

@@ -399,6 +399,27 @@ def test_bad_maps_are_rejected_and_previous_map_kept(ros):
     driver.map_pub.publish(map_msg(occ))  # leave the good map latched
 
 
+def test_signed_distance_runs_in_the_inference_thread_not_the_executor(ros, monkeypatch):
+    """The map callback only validates: a 400 x 400 signed distance (~15 ms) in the executor thread
+    would hold up every command behind it."""
+    driver, _ = ros
+    settle(driver, *FAR, 0.5, 0.0)
+    threads: list[str] = []
+    original = geometry.occupancy_signed_distance
+
+    def recording(*args, **kwargs):
+        threads.append(threading.current_thread().name)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(geometry, "occupancy_signed_distance", recording)
+    driver.map_pub.publish(map_msg(occupancy(), stamp_sec=4))
+    assert wait_for(lambda: driver.status["map_stamp"] == [4, 0], 3.0)
+    assert threads and set(threads) == {"brt_inference"}
+    monkeypatch.undo()
+    driver.map_pub.publish(map_msg(occupancy()))  # leave the stamp-1 map latched
+    assert wait_for(lambda: driver.status["map_stamp"] == [1, 0], 3.0)
+
+
 def test_bypass_passes_commands_and_reenable_filters(ros):
     driver, node = ros
     bundled = Path(node._model_stem) == ROOT / "models" / "default"
