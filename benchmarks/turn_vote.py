@@ -5,7 +5,8 @@ The bundled default is three members, each averaged over two D4 frames: six pred
 sign of the central θ-difference of the mean, of each of the six, of their majority vote, and of the
 mean where the six agree and where they split.  In closed loop (blend mode, the same worlds, starts and
 disturbances as ``hjrno simulate`` with the same seed) it tries two uses of a split: drive straight
-(κ = 0) with the safe control's acceleration, or brake straight.
+(κ = 0) with the safe control's acceleration, brake straight, or check the mean's turn on the map (the
+other turn where the mean's hits an obstacle within 1 s and the other does not).
 
     .venv/bin/python benchmarks/turn_vote.py --data data/indoor32t_r23 --seed 5 \\
         > benchmarks/results/closed_loop_history/turn_vote/seed5.md
@@ -27,7 +28,23 @@ from hjrno_ros.safety_filter import FilterSettings, control_to_twist, filter_bat
 from hjrno_ros.slices import InputSpec
 from hjrno_ros.value_table import ValueTable
 
-VARIANTS = ("plain", "straight", "brake")
+VARIANTS = ("plain", "straight", "brake", "map check")
+CHECK_S, CHECK_STEPS = 1.0, 10  # the map check's rollout: seconds, Euler steps
+
+
+def rollout_clearance(world: World, states: np.ndarray, accel: np.ndarray, turn: np.ndarray) -> np.ndarray:
+    """Lowest clearance ``(n,)`` of :data:`CHECK_S`-second rollouts at acceleration ``accel`` and curvature
+    ``turn`` · κ_max (no disturbance), on the world's exact obstacles."""
+    p, x, h = world.params, np.array(states, float, copy=True), CHECK_S / CHECK_STEPS
+    lowest = np.full(len(x), np.inf)
+    for _ in range(CHECK_STEPS):
+        v = x[:, 2]
+        x[:, 0] += h * v * np.cos(x[:, 3])
+        x[:, 1] += h * v * np.sin(x[:, 3])
+        x[:, 3] += h * v * turn * p.kappa_max
+        x[:, 2] = np.clip(v + h * accel, p.v_min, p.v_max)
+        lowest = np.minimum(lowest, world.clearance(x))
+    return lowest
 
 
 def part_tables(stem: str, solved: list[held_out.Solved]) -> list[list[np.ndarray]]:
@@ -82,7 +99,13 @@ def make_filter(world: World, fs: FilterSettings, table: ValueTable, parts: list
         split, acting = np.abs(signs.sum(0)) < len(parts), w < 1
         split_count[0] += int((split & acting).sum())
         split_count[1] += int(acting.sum())
-        u[split, 1] = 0.0
+        if variant == "map check":  # where they split and the mean's turn hits within CHECK_S, the other if it does not
+            turn = np.sign(u[split, 1])
+            ours = rollout_clearance(world, states[split], u[split, 0], turn)
+            other = rollout_clearance(world, states[split], u[split, 0], -turn)
+            u[np.flatnonzero(split)[(ours <= 0) & (other > 0)], 1] *= -1
+        else:
+            u[split, 1] = 0.0
         if variant == "brake":
             u[split, 0] = np.where(states[split, 2] > p.v_min, -p.a_max, 0.0)
         return w[:, None] * nominal + (1 - w[:, None]) * control_to_twist(p, states, u, fs.dt), acting
