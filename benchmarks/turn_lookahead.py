@@ -3,7 +3,7 @@
 The learned filters' remaining indoor collisions are wrong turns: the sign of the learned ∂V/∂θ,
 which picks κ* = ±κ_max, disagrees with the truth's for most of the 2 s before the car becomes
 unsafe (README, closed-loop section).  This variant drives both turns (the safe control's
-acceleration, κ = ±κ_max, Euler, no disturbance) for ``horizon`` seconds on the *value table* and
+acceleration, κ = ±κ_max, RK4, no disturbance) for ``horizon`` seconds on the *value table* and
 keeps the turn whose end state has the larger V (``--score end``) or whose lowest V along the way is
 larger (``--score min``).  It needs V over the whole (v, θ) table, which ``hjrno simulate`` has and
 the node (a 2 × 2 stencil around the state) does not, so this measures whether the idea is worth
@@ -32,25 +32,25 @@ from hjrno_ros.filter_study import TRUTH
 from hjrno_ros.safety_filter import FilterSettings, filter_batch
 from hjrno_ros.value_table import ValueTable
 
-STEPS = 10  # Euler steps of each look-ahead rollout
+STEPS = 10  # RK4 steps of each look-ahead rollout
 MIN_SLOPE = 0.01 / (2 * np.pi / 8)  # m/rad: |∂V_gt/∂θ| below this (theta_difference.py's MIN_DIFF) leaves the turn moot
+
+
+def rollout(params: CarParams, states: np.ndarray, accel: np.ndarray, turn, horizon: float):
+    """The states of a ``horizon``-second rollout (:data:`STEPS` RK4 steps of the car, no disturbance) at
+    constant acceleration ``accel`` ``(n,)`` and curvature ``turn`` · κ_max (``turn``: ±1, scalar or ``(n,)``)."""
+    u = np.column_stack([accel, np.broadcast_to(turn * params.kappa_max, accel.shape)])
+    x, d = np.asarray(states, float), np.zeros((len(states), 2))
+    for _ in range(STEPS):
+        x = closed_loop.rk4(params, x, u, d, horizon / STEPS)
+        yield x
 
 
 def rollout_score(params: CarParams, table: ValueTable, states: np.ndarray, accel: np.ndarray, turn: float,
                   horizon: float, score: str) -> np.ndarray:
-    """V at the end (``end``) or its minimum along (``min``) a ``horizon``-second rollout at constant
-    acceleration ``accel`` ``(n,)`` and curvature ``turn`` · κ_max."""
-    x = np.array(states, float, copy=True)
-    h = horizon / STEPS
-    lowest = np.full(len(x), np.inf)
-    for _ in range(STEPS):
-        v = x[:, 2]
-        x[:, 0] += h * v * np.cos(x[:, 3])
-        x[:, 1] += h * v * np.sin(x[:, 3])
-        x[:, 3] = np.angle(np.exp(1j * (x[:, 3] + h * v * turn * params.kappa_max)))
-        x[:, 2] = np.clip(v + h * accel, params.v_min, params.v_max)
-        lowest = np.minimum(lowest, table.value(x))
-    return table.value(x) if score == "end" else lowest
+    """V at the end (``end``) or its minimum along (``min``) a :func:`rollout`."""
+    values = [table.value(x) for x in rollout(params, states, accel, turn, horizon)]
+    return values[-1] if score == "end" else np.min(values, axis=0)
 
 
 def looked_ahead(params: CarParams, table: ValueTable, states: np.ndarray, grads: np.ndarray, horizon: float,
@@ -115,7 +115,7 @@ def main() -> None:
     per_world = -(-args.episodes // len(solved))
     variants = [(TRUTH, 0.0, "end")] + [(TRUTH, float(h), sc) for h in args.horizons.split(",") if float(h) > 0
                                         for sc in args.scores.split(",")]
-    variants += [(src, h, sc) for src in ("model",) for _, h, sc in variants]
+    variants += [("model", h, sc) for _, h, sc in variants]
     if args.oracle:
         variants.append(("model", 0.0, "oracle"))
     rows = {}
@@ -129,40 +129,35 @@ def main() -> None:
             epsilon = 0.1 if src == TRUTH else float(card["epsilon"])
             fs = FilterSettings(epsilon=epsilon, mode=args.mode, dt=settings.dt)
             key = f"{src} h={h:g}" + (f" {sc}" if h > 0 or sc == "oracle" else "")
-            row = rows.setdefault(key, {"collisions": 0, "episodes": 0, "steps": 0, "interventions": 0,
-                                        "goals": 0, "goal_episodes": 0, "flips": [0, 0, 0, 0], "by_world": {}})
-            r = closed_loop.run_episodes(world, eps, make_filter(world.params, fs, tables[src], world.truth, h, sc,
-                                                                     row["flips"]),
-                                         settings)
-            n_coll = int((r["outcome"] == "collision").sum())
-            row["collisions"] += n_coll
-            row["episodes"] += len(r["outcome"])
-            row["steps"] += int(r["steps"].sum())
-            row["interventions"] += int(r["interventions"].sum())
-            goal = r["controller"] == "goal"
-            row["goals"] += int((r["outcome"][goal] == "goal").sum())
-            row["goal_episodes"] += int(goal.sum())
-            if n_coll:
-                row["by_world"][s.name] = n_coll
+            row = rows.setdefault(key, {"results": [], "flips": [0, 0, 0, 0]})
+            row["results"].append(closed_loop.run_episodes(
+                world, eps, make_filter(world.params, fs, tables[src], world.truth, h, sc, row["flips"]), settings))
         print(f"world {w + 1}/{len(solved)} {s.name}: {time.perf_counter() - start:.0f} s", flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
-    truth_rate = rows[f"{TRUTH} h=0"]["interventions"] / rows[f"{TRUTH} h=0"]["steps"]
+    summary = {key: {**closed_loop.summarize(r["results"]), "flips": r["flips"],
+                     "by_world": collisions_by_world(r["results"], solved)} for key, r in rows.items()}
+    truth_rate = summary[f"{TRUTH} h=0"]["intervention_rate"]
     lines = [f"# Turn look-ahead on V ({time.strftime('%Y-%m-%d')})", "",
              f"`{' '.join(['benchmarks/turn_lookahead.py', *sys.argv[1:]])}`", "",
              f"{len(solved)} worlds ({args.data}), {per_world} episodes each, seed {args.seed}, mode {args.mode}; "
              f"ground truth ε = 0.1 m, {args.model} ε = {card['epsilon']:.3f} m (its card).", "",
              "| filter | episodes | collisions | intervention rate | vs ground truth h=0 | goals reached | "
              "turns changed (of acting decisions) | collisions by world |", "|" + " --- |" * 8]
-    for key, r in rows.items():
-        rate = r["interventions"] / r["steps"]
+    for key, r in summary.items():
         f = r["flips"]
         flips = f"{f[0]} / {f[1]}; where the true turn matters {f[2]} / {f[3]}" if f[1] else "-"
-        lines.append(f"| {key} | {r['episodes']} | {r['collisions']} | {rate:.3f} | {rate / truth_rate:.2f}× | "
-                     f"{r['goals'] / max(r['goal_episodes'], 1):.2f} | {flips} | "
+        lines.append(f"| {key} | {r['episodes']} | {r['collisions']} | {r['intervention_rate']:.3f} | "
+                     f"{r['intervention_rate'] / truth_rate:.2f}× | {r['goals_reached']:.2f} | {flips} | "
                      f"{', '.join(f'{k} ({v})' for k, v in r['by_world'].items()) or '-'} |")
     (args.out / "turn_lookahead.md").write_text("\n".join(lines) + "\n")
-    (args.out / "turn_lookahead.json").write_text(json.dumps(rows, indent=1))
+    (args.out / "turn_lookahead.json").write_text(json.dumps(summary, indent=1))
     print("\n".join(lines))
+
+
+def collisions_by_world(results: list[dict], solved: list) -> dict[str, int]:
+    """Collisions per world name, the worlds without any left out."""
+    counts = {s.name: int((r["outcome"] == "collision").sum()) for r, s in zip(results, solved, strict=True)}
+    return {name: n for name, n in counts.items() if n}
 
 
 if __name__ == "__main__":

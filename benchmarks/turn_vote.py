@@ -4,7 +4,7 @@ The bundled default is three members, each averaged over two D4 frames: six pred
 (the states that ``theta_difference.py`` scores: |V_gt| < 0.3 m, |ΔθV_gt| > 0.01 m), this scores the
 sign of the central θ-difference of the mean, of each of the six, of their majority vote, and of the
 mean where the six agree and where they split.  In closed loop (blend mode, the same worlds, starts and
-disturbances as ``hjrno simulate`` with the same seed) it tries two uses of a split: drive straight
+disturbances as ``hjrno simulate`` with the same seed) it tries three uses of a split: drive straight
 (κ = 0) with the safe control's acceleration, brake straight, or check the mean's turn on the map (the
 other turn where the mean's hits an obstacle within 1 s and the other does not).
 
@@ -19,6 +19,7 @@ import argparse
 import numpy as np
 import torch
 from theta_difference import BAND, MIN_DIFF, step
+from turn_lookahead import collisions_by_world, rollout
 
 from hjrno_ros import checkpoint, closed_loop, held_out
 from hjrno_ros.closed_loop import EpisodeSettings, World
@@ -29,22 +30,13 @@ from hjrno_ros.slices import InputSpec
 from hjrno_ros.value_table import ValueTable
 
 VARIANTS = ("plain", "straight", "brake", "map check")
-CHECK_S, CHECK_STEPS = 1.0, 10  # the map check's rollout: seconds, Euler steps
+CHECK_S = 1.0  # s: the map check's rollout
 
 
 def rollout_clearance(world: World, states: np.ndarray, accel: np.ndarray, turn: np.ndarray) -> np.ndarray:
-    """Lowest clearance ``(n,)`` of :data:`CHECK_S`-second rollouts at acceleration ``accel`` and curvature
-    ``turn`` · κ_max (no disturbance), on the world's exact obstacles."""
-    p, x, h = world.params, np.array(states, float, copy=True), CHECK_S / CHECK_STEPS
-    lowest = np.full(len(x), np.inf)
-    for _ in range(CHECK_STEPS):
-        v = x[:, 2]
-        x[:, 0] += h * v * np.cos(x[:, 3])
-        x[:, 1] += h * v * np.sin(x[:, 3])
-        x[:, 3] += h * v * turn * p.kappa_max
-        x[:, 2] = np.clip(v + h * accel, p.v_min, p.v_max)
-        lowest = np.minimum(lowest, world.clearance(x))
-    return lowest
+    """Lowest clearance ``(n,)`` along a :data:`CHECK_S`-second :func:`turn_lookahead.rollout` on the world's
+    exact obstacles."""
+    return np.min([world.clearance(x) for x in rollout(world.params, states, accel, turn, CHECK_S)], axis=0)
 
 
 def part_tables(stem: str, solved: list[held_out.Solved]) -> list[list[np.ndarray]]:
@@ -131,31 +123,24 @@ def main() -> None:
     card = checkpoint.load_card(args.model)
     fs = FilterSettings(epsilon=float(card["epsilon"]), mode="blend", dt=settings.dt)
     per_world = -(-args.episodes // len(keep))
-    rows = {v: {"collisions": 0, "episodes": 0, "steps": 0, "interventions": 0, "split": [0, 0], "by_world": {}}
-            for v in VARIANTS}
+    rows = {v: {"results": [], "split": [0, 0]} for v in VARIANTS}
     for w, i in enumerate(keep):
         s = every[i]
         world = World(s.name, s.scenario.shapes, ValueTable(s.grid, s.value), s.scenario.dynamics_params())
-        tables = [ValueTable(s.grid, p[i]) for p in parts]
+        table, tables = ValueTable(s.grid, mean[i]), [ValueTable(s.grid, p[i]) for p in parts]
         eps = closed_loop.draw_episodes(world, per_world, settings, seed=args.seed * 100003 + w, first=w * per_world)
         for v, row in rows.items():
-            r = closed_loop.run_episodes(world, eps, make_filter(world, fs, ValueTable(s.grid, mean[i]), tables, v,
-                                                                 row["split"]), settings)
-            n = int((r["outcome"] == "collision").sum())
-            row["collisions"] += n
-            row["episodes"] += len(r["outcome"])
-            row["steps"] += int(r["steps"].sum())
-            row["interventions"] += int(r["interventions"].sum())
-            if n:
-                row["by_world"][s.name] = n
+            row["results"].append(closed_loop.run_episodes(
+                world, eps, make_filter(world, fs, table, tables, v, row["split"]), settings))
     print(f"\nClosed loop, blend mode, ε = {fs.epsilon:.3f} m, {len(keep)} worlds × {per_world} episodes:\n")
     print("| on a split | episodes | collisions | intervention rate | split (of acting decisions) | by world |\n"
           "| --- | --- | --- | --- | --- | --- |")
-    for v, r in rows.items():
-        split = f"{r['split'][0]} / {r['split'][1]}" if r["split"][1] else "-"
-        where = ", ".join(f"{k} ({n})" for k, n in r["by_world"].items()) or "-"
-        print(f"| {v} | {r['episodes']} | {r['collisions']} | {r['interventions'] / r['steps']:.3f} | {split} | "
-              f"{where} |")
+    for v, row in rows.items():
+        r = closed_loop.summarize(row["results"])
+        split = f"{row['split'][0]} / {row['split'][1]}" if row["split"][1] else "-"
+        by_world = collisions_by_world(row["results"], [every[i] for i in keep])
+        where = ", ".join(f"{k} ({n})" for k, n in by_world.items()) or "-"
+        print(f"| {v} | {r['episodes']} | {r['collisions']} | {r['intervention_rate']:.3f} | {split} | {where} |")
 
 
 if __name__ == "__main__":
