@@ -2,13 +2,17 @@
 turn (its sign decides κ = ±κ_max): per dataset and model, the relative L2 error of the θ-difference
 V(θ_{k+1}) − V(θ_k) over the whole grid, and the sign agreement of the central difference
 V(θ_{k+1}) − V(θ_{k−1}) with the ground truth's on states near the zero level set
-(|V_gt| < BAND m, where the filter acts) whose true difference is not negligible.
+(|V_gt| < BAND m, where the filter acts) whose true difference is not negligible.  With ``--steps``
+the model's sign is also taken from V(θ_k + δ) − V(θ_k − δ), evaluated off the grid's headings
+(the heading enters as cos θ, sin θ channels, so any θ can be queried), against the same truth.
 
     .venv/bin/python benchmarks/theta_difference.py models/default out/models/X \\
         --data data/indoor32c,data/single32 > benchmarks/results/theta_difference/NAME.md
 """
 
 import argparse
+import sys
+from dataclasses import replace
 
 import numpy as np
 
@@ -23,14 +27,24 @@ def step(a: np.ndarray, shift: int) -> np.ndarray:
     return np.roll(a, -shift, 3) - a
 
 
-def scores(pred: list[np.ndarray], solved: list[held_out.Solved]) -> tuple[float, float, int]:
-    """(rel. L2 of the forward θ-difference, sign agreement near V = 0, states scored) over a folder."""
+def turned(solved: list[held_out.Solved], delta: float) -> list[held_out.Solved]:
+    """The scenarios with the grid's heading axis (the last) moved by ``delta`` rad."""
+    def move(bounds: tuple[float, ...]) -> tuple[float, ...]:
+        return (*bounds[:-1], bounds[-1] + delta)
+    return [replace(s, grid=replace(s.grid, lo=move(s.grid.lo), hi=move(s.grid.hi))) for s in solved]
+
+
+def scores(pred: list[np.ndarray], solved: list[held_out.Solved],
+           central: list[np.ndarray] | None = None) -> tuple[float, float, int]:
+    """(rel. L2 of the forward θ-difference, sign agreement near V = 0, states scored) over a folder;
+    the sign from ``central`` (the model's V(θ_k + δ) − V(θ_k − δ)) where given, else from the grid's."""
     num = den = 0.0
     agree = total = 0
-    for p, s in zip(pred, solved, strict=True):
+    for i, (p, s) in enumerate(zip(pred, solved, strict=True)):
         dp, dg = step(p, 1), step(s.value, 1)
         num, den = num + float(((dp - dg) ** 2).sum()), den + float((dg**2).sum())
-        cp, cg = dp - step(p, -1), dg - step(s.value, -1)  # V(θ_{k+1}) − V(θ_{k−1})
+        cp = dp - step(p, -1) if central is None else central[i]  # V(θ_{k+1}) − V(θ_{k−1})
+        cg = dg - step(s.value, -1)
         near = (np.abs(s.value) < BAND) & (np.abs(cg) > MIN_DIFF)
         agree, total = agree + int((np.sign(cp[near]) == np.sign(cg[near])).sum()), total + int(near.sum())
     return float(np.sqrt(num / max(den, 1e-12))), agree / max(total, 1), total
@@ -41,17 +55,27 @@ def main() -> None:
     parser.add_argument("models", nargs="+", help="model stems")
     parser.add_argument("--data", default="data/indoor32c,data/single32,data/two32,data/windows32",
                         help="comma-separated dataset folders (their whole test split is scored)")
+    parser.add_argument("--steps", default="", help="comma-separated δ, rad: also take the model's sign from "
+                                                     "V(θ + δ) − V(θ − δ) off the grid's headings")
     args = parser.parse_args()
     folders = [f for f in args.data.split(",") if f]
     solved = {f: held_out.load([f], "all", unconverged=True) for f in folders}
+    print(f"`{' '.join(['benchmarks/theta_difference.py', *sys.argv[1:]])}`\n")
     print(f"θ-difference of V on test splits (all samples); sign scored where |V_gt| < {BAND} m and "
           f"|ΔV_gt| > {MIN_DIFF} m\n")
-    print("| model | data | scenarios | rel. L2 of ΔθV | sign agreement near V = 0 | states |")
-    print("|---|---|---|---|---|---|")
+    print("| model | data | scenarios | rel. L2 of ΔθV | model's sign from | sign agreement near V = 0 | states |")
+    print("|---|---|---|---|---|---|---|")
     for stem in args.models:
         for f, part in solved.items():
-            rel, agree, n = scores(held_out.predict(stem, part), part)
-            print(f"| {stem} | {f} | {len(part)} | {rel:.4f} | {agree:.3f} | {n} |", flush=True)
+            pred = held_out.predict(stem, part)
+            rel, agree, n = scores(pred, part)
+            spacing = part[0].grid.spacings[-1]
+            print(f"| {stem} | {f} | {len(part)} | {rel:.4f} | grid, ±{spacing:.3f} rad | {agree:.3f} | {n} |",
+                  flush=True)
+            for delta in (float(d) for d in args.steps.split(",") if d):
+                plus, minus = (held_out.predict(stem, turned(part, sign * delta)) for sign in (1, -1))
+                _, agree, n = scores(pred, part, [a - b for a, b in zip(plus, minus, strict=True)])
+                print(f"| {stem} | {f} | {len(part)} | | ±{delta:.3f} rad | {agree:.3f} | {n} |", flush=True)
 
 
 if __name__ == "__main__":
