@@ -4,7 +4,9 @@ V(θ_{k+1}) − V(θ_k) over the whole grid, and the sign agreement of the centr
 V(θ_{k+1}) − V(θ_{k−1}) with the ground truth's on states near the zero level set
 (|V_gt| < BAND m, where the filter acts) whose true difference is not negligible.  With ``--steps``
 the model's sign is also taken from V(θ_k + δ) − V(θ_k − δ), evaluated off the grid's headings
-(the heading enters as cos θ, sin θ channels, so any θ can be queried), against the same truth.
+(the heading enters as cos θ, sin θ channels, so any θ can be queried), against the same truth;
+with ``--spatial`` from the turn toward V's spatial gradient (the heading's left normal · ∇ₓV, of the
+model's V and of the truth's), a geometric stand-in for ∂V/∂θ.
 
     .venv/bin/python benchmarks/theta_difference.py models/default out/models/X \\
         --data data/indoor32c,data/single32 > benchmarks/results/theta_difference/NAME.md
@@ -34,6 +36,13 @@ def turned(solved: list[held_out.Solved], delta: float) -> list[held_out.Solved]
     return [replace(s, grid=replace(s.grid, lo=move(s.grid.lo), hi=move(s.grid.hi))) for s in solved]
 
 
+def toward_gradient(values: np.ndarray, solved: held_out.Solved) -> np.ndarray:
+    """(−sin θ, cos θ) · ∇ₓV on a (Nx, Ny, Nv, Nθ) table: > 0 where turning left points the car up V's slope."""
+    vx, vy = np.gradient(values, *solved.grid.spacings[:2], axis=(0, 1))
+    theta = solved.grid.axis(3)
+    return -np.sin(theta) * vx + np.cos(theta) * vy
+
+
 def scores(pred: list[np.ndarray], solved: list[held_out.Solved],
            central: list[np.ndarray] | None = None) -> tuple[float, float, int]:
     """(rel. L2 of the forward θ-difference, sign agreement near V = 0, states scored) over a folder;
@@ -57,13 +66,14 @@ def main() -> None:
                         help="comma-separated dataset folders (their whole test split is scored)")
     parser.add_argument("--steps", default="", help="comma-separated δ, rad: also take the model's sign from "
                                                      "V(θ + δ) − V(θ − δ) off the grid's headings")
+    parser.add_argument("--spatial", action="store_true", help="also take the sign from the turn toward ∇ₓV")
     args = parser.parse_args()
     folders = [f for f in args.data.split(",") if f]
     solved = {f: held_out.load([f], "all", unconverged=True) for f in folders}
     print(f"`{' '.join(['benchmarks/theta_difference.py', *sys.argv[1:]])}`\n")
     print(f"θ-difference of V on test splits (all samples); sign scored where |V_gt| < {BAND} m and "
           f"|ΔV_gt| > {MIN_DIFF} m\n")
-    print("| model | data | scenarios | rel. L2 of ΔθV | model's sign from | sign agreement near V = 0 | states |")
+    print("| model | data | scenarios | rel. L2 of ΔθV | turn sign from | sign agreement near V = 0 | states |")
     print("|---|---|---|---|---|---|---|")
     for stem in args.models:
         for f, part in solved.items():
@@ -76,6 +86,11 @@ def main() -> None:
                 plus, minus = (held_out.predict(stem, turned(part, sign * delta)) for sign in (1, -1))
                 _, agree, n = scores(pred, part, [a - b for a, b in zip(plus, minus, strict=True)])
                 print(f"| {stem} | {f} | {len(part)} | | ±{delta:.3f} rad | {agree:.3f} | {n} |", flush=True)
+            if args.spatial:
+                for whose, tables in (("model's", pred), ("truth's", [s.value for s in part])):
+                    _, agree, n = scores(pred, part, [toward_gradient(t, s) for t, s in zip(tables, part, strict=True)])
+                    print(f"| {stem} | {f} | {len(part)} | | turn toward the {whose} ∇ₓV | {agree:.3f} | {n} |",
+                          flush=True)
 
 
 if __name__ == "__main__":
