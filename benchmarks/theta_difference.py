@@ -43,20 +43,30 @@ def toward_gradient(values: np.ndarray, solved: held_out.Solved) -> np.ndarray:
     return -np.sin(theta) * vx + np.cos(theta) * vy
 
 
-def scores(pred: list[np.ndarray], solved: list[held_out.Solved],
-           central: list[np.ndarray] | None = None) -> tuple[float, float, int]:
-    """(rel. L2 of the forward θ-difference, sign agreement near V = 0, states scored) over a folder;
-    the sign from ``central`` (the model's V(θ_k + δ) − V(θ_k − δ)) where given, else from the grid's."""
+def scores(pred: list[np.ndarray], solved: list[held_out.Solved]) -> tuple[float, float, int]:
+    """(rel. L2 of the forward θ-difference, sign agreement near V = 0, states scored) over a folder."""
     num = den = 0.0
-    agree = total = 0
-    for i, (p, s) in enumerate(zip(pred, solved, strict=True)):
+    for p, s in zip(pred, solved, strict=True):
         dp, dg = step(p, 1), step(s.value, 1)
         num, den = num + float(((dp - dg) ** 2).sum()), den + float((dg**2).sum())
-        cp = dp - step(p, -1) if central is None else central[i]  # V(θ_{k+1}) − V(θ_{k−1})
-        cg = dg - step(s.value, -1)
-        near = (np.abs(s.value) < BAND) & (np.abs(cg) > MIN_DIFF)
-        agree, total = agree + int((np.sign(cp[near]) == np.sign(cg[near])).sum()), total + int(near.sum())
-    return float(np.sqrt(num / max(den, 1e-12))), agree / max(total, 1), total
+    central = [step(p, 1) - step(p, -1) for p in pred]  # V(θ_{k+1}) − V(θ_{k−1})
+    return (float(np.sqrt(num / max(den, 1e-12))), *agreement(central, solved))
+
+
+def scored(solved: held_out.Solved) -> tuple[np.ndarray, np.ndarray]:
+    """The truth's central θ-difference V(θ_{k+1}) − V(θ_{k−1}) and the states whose sign is scored
+    (near V = 0, the difference not negligible)."""
+    cg = step(solved.value, 1) - step(solved.value, -1)
+    return cg, (np.abs(solved.value) < BAND) & (np.abs(cg) > MIN_DIFF)
+
+
+def agreement(turns: list[np.ndarray], solved: list[held_out.Solved]) -> tuple[float, int]:
+    """(How often ``turns``' sign is the truth's central difference's near V = 0, states scored)."""
+    agree = total = 0
+    for t, s in zip(turns, solved, strict=True):
+        cg, near = scored(s)
+        agree, total = agree + int((np.sign(t[near]) == np.sign(cg[near])).sum()), total + int(near.sum())
+    return agree / max(total, 1), total
 
 
 def main() -> None:
@@ -84,11 +94,11 @@ def main() -> None:
                   flush=True)
             for delta in (float(d) for d in args.steps.split(",") if d):
                 plus, minus = (held_out.predict(stem, turned(part, sign * delta)) for sign in (1, -1))
-                _, agree, n = scores(pred, part, [a - b for a, b in zip(plus, minus, strict=True)])
+                agree, n = agreement([a - b for a, b in zip(plus, minus, strict=True)], part)
                 print(f"| {stem} | {f} | {len(part)} | | ±{delta:.3f} rad | {agree:.3f} | {n} |", flush=True)
             if args.spatial:
                 for whose, tables in (("model's", pred), ("truth's", [s.value for s in part])):
-                    _, agree, n = scores(pred, part, [toward_gradient(t, s) for t, s in zip(tables, part, strict=True)])
+                    agree, n = agreement([toward_gradient(t, s) for t, s in zip(tables, part, strict=True)], part)
                     print(f"| {stem} | {f} | {len(part)} | | turn toward the {whose} ∇ₓV | {agree:.3f} | {n} |",
                           flush=True)
 

@@ -18,7 +18,7 @@ import argparse
 
 import numpy as np
 import torch
-from theta_difference import BAND, MIN_DIFF, step
+from theta_difference import scored, step
 from turn_lookahead import collisions_by_world, rollout
 
 from hjrno_ros import checkpoint, closed_loop, held_out
@@ -62,8 +62,7 @@ def offline(mean: list[np.ndarray], parts: list[list[np.ndarray]], solved: list[
     res = {k: [0, 0] for k in ("mean", "majority vote", *[f"part {k}" for k in range(len(parts))],
                                "mean where all six agree", "mean where they split")}
     for w, s in enumerate(solved):
-        cg = cdiff(s.value)
-        near = (np.abs(s.value) < BAND) & (np.abs(cg) > MIN_DIFF)
+        cg, near = scored(s)
         truth, cm = np.sign(cg[near]), np.sign(cdiff(mean[w])[near])
         signs = np.stack([np.sign(cdiff(p[w])[near]) for p in parts])
         votes = signs.sum(0)
