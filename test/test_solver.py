@@ -107,6 +107,41 @@ def test_air3d_matches_hj_builtin_system():
     assert np.array_equal(value <= 0, reference <= 0)
 
 
+def test_a_warm_start_at_v_inf_stays_there(disk_coarse):
+    problem, value, _ = disk_coarse
+    warm, report = solve(problem.dynamics, problem.grid, problem.target, initial=value)
+    assert report.converged and report.horizon == pytest.approx(1.0)  # settled in its first chunk
+    assert np.abs(warm - value).max() < 5e-3
+
+
+def test_an_optimistic_warm_start_comes_down_to_v_inf(disk_coarse):
+    """The tube only lowers V and V∞ is its largest fixed point below l: from above, it returns to V∞
+    (to within what the convergence tolerance leaves: measured 0.034 m near V = 0), sooner than from l."""
+    problem, value, cold = disk_coarse
+    start = value + 0.3
+    warm, report = solve(problem.dynamics, problem.grid, problem.target, initial=start)
+    assert report.converged and report.horizon < cold.horizon
+    assert np.all(warm <= np.minimum(start, problem.target) + 1e-5)
+    s = problem.grid.states()
+    near = (np.abs(s[..., 0]) < 4.0) & (np.abs(s[..., 1]) < 4.0) & (np.abs(value) < 0.5)
+    assert np.abs(warm - value)[near].max() < 0.06
+    assert np.mean((warm <= 0) != (value <= 0)) < 1e-3
+
+
+def test_a_pessimistic_warm_start_stays_below_v_inf(disk_coarse):
+    problem, value, _ = disk_coarse
+    warm, _ = solve(problem.dynamics, problem.grid, problem.target, initial=value - 0.2, max_horizon=4.0)
+    assert np.all(warm <= value - 0.2 + 1e-5)  # conservative: never above its start
+
+
+@pytest.mark.parametrize("initial, message", [(np.zeros((5, 5, 5, 5)), "does not match"),
+                                              (np.full((24, 24, 7, 12), np.inf), "NaN/Inf")])
+def test_bad_warm_starts_are_rejected(initial, message):
+    grid = car_grid((24, 24, 7, 12))
+    with pytest.raises(ValueError, match=message):
+        solve(DynamicDubinsCar(), grid, Disk((0, 0), 1.0).sdf(grid.states()[..., :2]), initial=initial)
+
+
 def test_non_convergence_is_reported():
     problem = problems.disk((24, 24, 7, 12))
     _, report = solve(problem.dynamics, problem.grid, problem.target, max_horizon=3.0)
