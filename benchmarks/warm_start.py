@@ -32,8 +32,10 @@ from hjrno_ros import closed_loop, held_out
 from hjrno_ros.checkpoint import load_card
 from hjrno_ros.closed_loop import EpisodeSettings, World
 from hjrno_ros.dataset import load_split
-from hjrno_ros.safety_filter import FilterSettings, filter_batch
+from hjrno_ros.filter_study import FilterChoice, make_filter
+from hjrno_ros.safety_filter import FilterSettings
 from hjrno_ros.solver import solve
+from hjrno_ros.stop_zone import StopZoneSettings
 from hjrno_ros.value_table import ValueTable
 
 TRUTH_EPSILON = 0.1  # m: the ground-truth filter's margin in the closed-loop table
@@ -86,12 +88,9 @@ def run_closed_loop(solved: list[held_out.Solved], tables: dict[str, tuple[list[
         world = World(s.name, s.scenario.shapes, ValueTable(s.grid, s.value), s.scenario.dynamics_params())
         eps = closed_loop.draw_episodes(world, per_world, settings, seed=seed * 100003 + w, first=w * per_world)
         for label, (values, epsilon) in tables.items():
-            table = ValueTable(s.grid, values[i])
-            fs = FilterSettings(epsilon=epsilon, mode=mode, dt=settings.dt)
-
-            def filt(states, nominal, table=table, fs=fs, params=world.params):
-                v, g = table.value_and_gradient(states)
-                return filter_batch(params, fs, states, v, g, nominal)
+            choice = FilterChoice(label, "hj", label, mode, epsilon)
+            filt = make_filter(choice, world, {label: ValueTable(s.grid, values[i])}, StopZoneSettings(),
+                               settings.dt, FilterSettings.decay_rate)
             results[label].append(closed_loop.run_episodes(world, eps, filt, settings))
     return {label: closed_loop.summarize(r) for label, r in results.items()}
 

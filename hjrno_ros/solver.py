@@ -153,8 +153,8 @@ def solve(
     ``initial`` (same grid) warm-starts the tube at min(initial, l) instead of l, e.g. from an
     operator's prediction.  The tube only lowers V and V∞ is the largest fixed point below l, so its
     limit is ≤ V∞ (conservative where the start was below V∞) and is V∞ if the start was ≥ V∞
-    everywhere; a solve stopped by the tolerance lies a little above that limit (0.034 m near V = 0
-    from V∞ + 0.3 m on the disk test, in 8 simulated seconds against the cold solve's 14).
+    everywhere; a solve stopped by the tolerance lies a little above that limit (< 0.06 m near V = 0
+    from V∞ + 0.3 m in ``test_an_optimistic_warm_start_comes_down_to_v_inf``).
     """
     if min(grid.shape) < 3:
         raise ValueError(f"the solver needs at least 3 nodes per grid axis, got shape {grid.shape}")

@@ -116,7 +116,7 @@ def test_a_warm_start_at_v_inf_stays_there(disk_coarse):
 
 def test_an_optimistic_warm_start_comes_down_to_v_inf(disk_coarse):
     """The tube only lowers V and V∞ is its largest fixed point below l: from above, it returns to V∞
-    (to within what the convergence tolerance leaves: measured 0.034 m near V = 0), sooner than from l."""
+    (to within what the convergence tolerance leaves near V = 0), sooner than from l."""
     problem, value, cold = disk_coarse
     start = value + 0.3
     warm, report = solve(problem.dynamics, problem.grid, problem.target, initial=start)
