@@ -87,7 +87,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profi
 from std_msgs.msg import Float32MultiArray, MultiArrayDimension, String
 from std_srvs.srv import SetBool
 
-from . import checkpoint, geometry, safety_filter
+from . import checkpoint, geometry, map_refinement, safety_filter
 from .grids import wrap_angle
 
 NODE_NAME = "brt_node"
@@ -97,6 +97,7 @@ STATUS_PERIOD = 0.1  # s
 DIAGNOSTICS_PERIOD = 1.0  # s
 MAP_YAW_TOLERANCE = 1e-3  # rad: only axis-aligned maps are supported
 INFERENCE_NICE = 10  # the inference thread's nice value above the node's
+REFINE_SETTLE = 2.0  # s a map must stand before its background refinement starts
 LIMIT_TOLERANCE = 1e-6
 
 
@@ -163,6 +164,12 @@ PARAMETERS: dict[str, tuple[Any, str, dict]] = {
                       {"floating_point_range": _float_range(0.05, 60.0)}),
     "control_period": (0.05, "s: stop-republish timer period; also dt of v_cmd = v + u1*dt",
                        {"floating_point_range": _float_range(1e-3, 1.0)}),
+    "refine_horizon": (0.0, "s: simulated time the HJ solver refines the operator's value over the whole map, "
+                            "warm-started from it, in a background process (nice 19); the filter uses each refined "
+                            "stage for as long as that map stands; 0 = off (static maps: see README)",
+                       {"read_only": True, "floating_point_range": _float_range(0.0, 600.0)}),
+    "refine_stage": (4.0, "s: simulated time between the refined tables handed to the filter",
+                     {"read_only": True, "floating_point_range": _float_range(0.5, 600.0)}),
     "stop_pub_timeout": (2.0, "s: keep publishing zeros while fail-closed until this long after the last nominal "
                               "command; 0 = only answer commands", {"floating_point_range": _float_range(0.0, 60.0)}),
 }
@@ -180,7 +187,7 @@ def validate_parameters(cfg: dict[str, Any], startup: bool = False) -> str | Non
     for name in positive:
         if not (math.isfinite(cfg[name]) and cfg[name] > 0):
             return f"{name} must be finite and > 0, got {cfg[name]}"
-    for name in ("map_timeout", "stop_pub_timeout", "speed_tolerance"):
+    for name in ("map_timeout", "stop_pub_timeout", "speed_tolerance", "refine_horizon"):
         if not (math.isfinite(cfg[name]) and cfg[name] >= 0):
             return f"{name} must be finite and >= 0, got {cfg[name]}"
     r = cfg["inflation_radius"]
@@ -188,6 +195,8 @@ def validate_parameters(cfg: dict[str, Any], startup: bool = False) -> str | Non
         return f"inflation_radius must be finite and >= 0, or -1 (h/sqrt(2) of the model grid), got {r}"
     if not 0 <= cfg["occupied_threshold"] <= 100:
         return f"occupied_threshold must lie in 0..100, got {cfg['occupied_threshold']}"
+    if not (math.isfinite(cfg["refine_stage"]) and cfg["refine_stage"] > 0):
+        return f"refine_stage must be finite and > 0, got {cfg['refine_stage']}"
     if cfg["inference_threads"] < 1:
         return f"inference_threads must be >= 1, got {cfg['inference_threads']}"
     return None
@@ -387,6 +396,18 @@ class ValueData:
     map_version: int
     latency_ms: float
     grid_info: dict  # origin/resolution/size of the published value grid
+    source: str = "operator"  # or "refined": the background solve's table over the whole map
+
+
+@dataclasses.dataclass(frozen=True)
+class RefinedValue:
+    """A stage of the background refinement, for the map version it was started for."""
+
+    table: Any  # ValueTable over the map × the model's (v, θ) grid
+    map_version: int
+    horizon: float  # simulated s of solver so far
+    settled: bool
+    wall_s: float
 
 
 def table_state(state: RobotState, table_theta: float, v_lo: float, v_hi: float) -> np.ndarray:
@@ -455,6 +476,10 @@ class BrtNode(Node):
         self._value: ValueData | None = None
         self._inference_error = ""
         self._sd_dirty = False
+        self._refiner = map_refinement.BackgroundRefinement() if cfg["refine_horizon"] > 0 else None
+        self._refine_version: int | None = None  # map version the refinement runs (or ran) for
+        self._refine_error = ""
+        self._refined: RefinedValue | None = None
         self._last_cmd: tuple[float, str] | None = None  # (monotonic s, header frame_id)
         self._cmd_times: collections.deque[float] = collections.deque(maxlen=200)  # s in the command callback
         self._last_decision: safety_filter.Decision | None = None
@@ -815,12 +840,15 @@ class BrtNode(Node):
         m = self._map
         if m is None:
             return
+        self._refinement_step(m)
         now = time.monotonic()
         state, _ = self._robot_state(now, m)
         if state is None:
             return
+        refined = self._usable_refinement(m, state)
         val = self._value
         if not (self._inference_error or val is None or val.map_version != m.version
+                or (val.table is not refined.table if refined else val.source != "operator")
                 or math.hypot(state.x - val.center[0], state.y - val.center[1]) > cfg["recenter_distance"]
                 or abs(state.v - val.v) > 0.5 * self._dv  # the state left the stencil's cell
                 or abs(float(wrap_angle(state.theta - val.theta))) > 0.5 * self._dtheta
@@ -829,12 +857,12 @@ class BrtNode(Node):
         start = time.perf_counter()
         p = self._vf.params
         center = (state.x, state.y)
-        outside = -m.resolution if m.unknown_is_obstacle else None
-        v0 = geometry.sample_raster(m.sd, m.origin, m.resolution, self._vf.window_points(center), outside=outside)
         inflation = self._inflation(cfg["inflation_radius"])
-        v0 -= np.float32(inflation)
         v = min(max(state.v, p.v_min), p.v_max)
-        table = self._vf.local_table(v0, center, v, state.theta)
+        if refined is None:
+            table = self._vf.local_table(self._v0(m, self._vf.window_points(center)), center, v, state.theta)
+        else:
+            table = refined.table
         latency = 1e3 * (time.perf_counter() - start)
         nodes = self._vf.window_points(center, self._grid_shape)
         states = np.concatenate([nodes, np.broadcast_to([v, state.theta], (*nodes.shape[:2], 2))], -1)
@@ -842,12 +870,63 @@ class BrtNode(Node):
         h = self._grid_resolution
         info = {"frame_id": m.frame_id, "origin": [float(nodes[0, 0, 0] - h / 2), float(nodes[0, 0, 1] - h / 2)],
                 "resolution": h, "width": self._grid_shape[0], "height": self._grid_shape[1], "v": v,
-                "theta": state.theta, "center": list(center), "inflation_radius": inflation}
-        self._value = ValueData(table, center, v, state.theta, time.monotonic(), m.version, latency, info)
+                "theta": state.theta, "center": list(center), "inflation_radius": inflation,
+                "source": "refined" if refined else "operator"}
+        self._value = ValueData(table, center, v, state.theta, time.monotonic(), m.version, latency, info,
+                                info["source"])
         self._inference_error = ""
         with self._lock:
             self._counts.inferences += 1
         self._publish_value(values, info, m, state)
+
+    def _v0(self, m: MapData, points: np.ndarray) -> np.ndarray:
+        """V0 at x-y ``points`` (..., 2): the map's signed distance minus the inflation (float32, m)."""
+        outside = -m.resolution if m.unknown_is_obstacle else None
+        v0 = geometry.sample_raster(m.sd, m.origin, m.resolution, points, outside=outside)
+        return (v0 - self._inflation(self._cfg["inflation_radius"])).astype(np.float32)
+
+    def _refinement_step(self, m: MapData) -> None:
+        """Start refining a new map version in the background; take a newly finished stage of the current one."""
+        r = self._refiner
+        if r is None:
+            return
+        if self._refine_version != m.version:
+            if time.monotonic() - m.received < REFINE_SETTLE:
+                return  # a map updated every second (SLAM, the node benchmark) never starts a solve
+            self._refine_version, self._refined, self._refine_error = m.version, None, ""
+            r.stop()
+            far = tuple(o + n * m.resolution for o, n in zip(m.origin, m.occupancy.shape, strict=True))
+            grid = map_refinement.map_grid(self._vf.grid, m.origin, far)
+            if int(np.prod(grid.shape)) > map_refinement.MAX_STATES:
+                self._refine_error = (f"map too large to refine: {grid.shape} states > {map_refinement.MAX_STATES:.0e}"
+                                      "; the operator's windows only")
+                self.get_logger().warning(self._refine_error)
+                return
+            xy = np.stack(np.meshgrid(grid.axis(0), grid.axis(1), indexing="ij"), -1)
+            r.start(m.version, self._v0(m, xy), grid, str(self._model_stem), self._cfg["refine_horizon"],
+                    self._cfg["refine_stage"])
+            return
+        stage = r.poll()
+        if r.error and r.error != self._refine_error:
+            self._refine_error = r.error
+            self.get_logger().error(r.error)
+        if stage is not None and stage.key == m.version:
+            from .value_table import ValueTable
+
+            self._refined = RefinedValue(ValueTable(stage.grid, stage.values), m.version, stage.horizon,
+                                         stage.settled, stage.wall_s)
+            self.get_logger().info(f"refined value for map {m.version}: {stage.horizon:g} simulated s "
+                                   f"({'settled' if stage.settled else 'not settled'}), {stage.wall_s:.1f} s wall")
+
+    def _usable_refinement(self, m: MapData, state: RobotState) -> RefinedValue | None:
+        """The refined table if it is the current map's and the robot is inside it, two x-y cells from its edge."""
+        r = self._refined
+        if r is None or r.map_version != m.version:
+            return None
+        g = r.table.grid
+        margin = 2 * np.asarray(g.spacings[:2])
+        lo, hi = np.asarray(g.lo[:2]) + margin, np.asarray(g.hi[:2]) - margin
+        return r if bool(np.all((lo <= (state.x, state.y)) & ((state.x, state.y) <= hi))) else None
 
     def _install_incoming_map(self, cfg: dict[str, Any]) -> None:
         """The newest validated map, with its signed distance, becomes the current map."""
@@ -930,9 +1009,23 @@ class BrtNode(Node):
             "dropped": {"cmd": counts["cmd"], "odom": counts["odom"], "pose": counts["pose"], "map": counts["map"]},
             "counts": {k: counts[k] for k in ("commands", "interventions", "stops", "inferences", "inference_errors")},
             "value_grid": val.grid_info if val else None,
+            "value_source": val.source if val else None,
+            "refinement": self._refinement_status(),
             "model": str(self._model_stem),
             "symmetry_average": bool(self._card.get("symmetry_average", False)),
         }
+
+    def _refinement_status(self) -> dict[str, Any] | None:
+        """None when refine_horizon = 0; else the background solve's state and its newest stage."""
+        if self._refiner is None:
+            return None
+        r = self._refined
+        m = self._map
+        current = r is not None and m is not None and r.map_version == m.version
+        state = ("failed" if self._refine_error else "running" if self._refiner.running
+                 else "done" if current else "waiting")
+        return {"state": state, "error": self._refine_error, "horizon_s": r.horizon if current else 0.0,
+                "settled": bool(current and r.settled), "wall_s": r.wall_s if current else None}
 
     def _filter_ms(self) -> dict[str, float] | None:
         """Time spent in the command callback (check, V and ∇V, filter, publish) over the last 200 commands."""
@@ -949,7 +1042,8 @@ class BrtNode(Node):
         st = self.status()
         level = {"ok": DiagnosticStatus.OK, "intervening": DiagnosticStatus.OK, "bypassed": DiagnosticStatus.WARN,
                  "fail_closed": DiagnosticStatus.ERROR}[st["state"]]
-        flat = {k: v for k, v in st.items() if k not in ("dropped", "counts", "value_grid", "robot", "filter_ms")}
+        flat = {k: v for k, v in st.items()
+                if k not in ("dropped", "counts", "value_grid", "robot", "filter_ms", "refinement")}
         flat.update({f"dropped_{k}": v for k, v in st["dropped"].items()})
         flat.update(st["counts"])
         status = DiagnosticStatus(level=level, name=f"{self.get_name()}: BRT safety filter", message=st["reason"],
@@ -971,6 +1065,8 @@ class BrtNode(Node):
 
     def destroy_node(self) -> None:
         self._stop_worker()
+        if getattr(self, "_refiner", None) is not None:
+            self._refiner.stop()
         super().destroy_node()
 
 

@@ -243,6 +243,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                                    filters=args.filters.split(",") if args.filters else None,
                                    progress=(lambda m: None) if args.quiet else print,
                                    unconverged=args.allow_unconverged, inflation_at=args.inflation_at,
+                                   refine=args.refine,
                                    **({"decay_rate": args.decay_rate} if args.decay_rate else {}))
     out = Path(args.out)
     command = "hjrno " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("hjrno") else "hjrno simulate ..."
@@ -405,6 +406,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--inflation-at", default="input", choices=["input", "output"],
                    help="datasets solved with --inflation r: the models read l - r, as brt_node feeds them "
                    "(default), or read l with r taken off their output (exact for the true operator)")
+    p.add_argument("--refine", type=float, default=0.0, help="also filter with each model's table refined by this "
+                   "many simulated s of the solver warm-started from it (brt_node's refine_horizon), s")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     p.add_argument("--out", default="benchmarks/results", help="results folder")

@@ -55,6 +55,21 @@ def _name(source: str, mode: str) -> str:
     return source if mode == "switch" else f"{source}_{mode}"
 
 
+def refined_label(label: str, horizon: float) -> str:
+    return f"{label}_refined{horizon:g}s"
+
+
+def refined_tables(solved: list[held_out.Solved], predicted: list, horizon: float) -> list:
+    """Each world's predicted table after ``horizon`` simulated s of the solver warm-started from it."""
+    from .map_refinement import refine
+
+    out = []
+    for s, p in zip(solved, predicted, strict=True):
+        *_, (_, table, _) = refine(s.scenario.dynamics(), s.grid, s.target, p, horizon, horizon)
+        out.append(table)
+    return out
+
+
 def make_filter(choice: FilterChoice, world: World, tables: dict[str, ValueTable],
                 stop: StopZoneSettings, dt: float, decay_rate: float) -> closed_loop.Filter | None:
     if choice.kind == "none":
@@ -70,9 +85,11 @@ def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, s
               truth_epsilon: float = DEFAULT_MARGIN, part: str = "fresh", settings: EpisodeSettings = EpisodeSettings(),
               stop: StopZoneSettings = StopZoneSettings(), filters: list[str] | None = None,
               progress=print, unconverged: bool = False, decay_rate: float = FilterSettings.decay_rate,
-              inflation_at: str = "input") -> dict:
+              inflation_at: str = "input", refine: float = 0.0) -> dict:
     """Run every filter over ≥ ``episodes`` episodes spread evenly over the held-out worlds
-    (``inflation_at``: how the learned maps meet the datasets' inflation, ``held_out.INFLATION_AT``)."""
+    (``inflation_at``: how the learned maps meet the datasets' inflation, ``held_out.INFLATION_AT``).
+    ``refine`` > 0 adds per model a filter on its table refined by ``refine`` simulated s of the solver
+    warm-started from it (what brt_node's ``refine_horizon`` does), with the model's card."""
     from . import checkpoint
 
     solved = held_out.load(folders, part, unconverged)
@@ -87,6 +104,8 @@ def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, s
     if not solved:
         raise ValueError(f"no held-out world in {folders} ({part}) has a safe start")
     cards = {label: checkpoint.load_card(stem) for label, stem in models.items()}
+    if refine > 0:
+        cards.update({refined_label(label, refine): card for label, card in list(cards.items())})
     choices = default_filters(cards, truth_epsilon)
     if filters:
         choices = [c for c in choices if any(c.name.startswith(f) for f in filters)]
@@ -95,6 +114,13 @@ def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, s
     start = time.perf_counter()
     predicted = {label: held_out.predict(stem, solved, inflation_at=inflation_at) for label, stem in models.items()}
     infer_s = (time.perf_counter() - start) / max(len(solved), 1)
+    refine_s = 0.0
+    if refine > 0:
+        start = time.perf_counter()
+        predicted.update({refined_label(label, refine): refined_tables(solved, p, refine)
+                          for label, p in list(predicted.items())})
+        refine_s = (time.perf_counter() - start) / max(len(solved), 1)
+        progress(f"refined {len(models)} model(s) for {refine:g} simulated s: {refine_s:.1f} s per world")
     per_world = -(-episodes // len(solved))
     results: dict[str, list[dict]] = {c.name: [] for c in choices}
     traces: dict[str, tuple] = {}
@@ -116,7 +142,8 @@ def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, s
     where = {name: {s.name: n for s, n in zip(solved, counts, strict=True) if n} for name, counts in collided.items()}
     return {"rows": rows, "worlds": [s.name for s in solved], "skipped_worlds": skipped,
             "episodes_per_world": per_world,
-            "map_inference_ms": 1e3 * infer_s, "settings": dataclasses.asdict(settings),
+            "map_inference_ms": 1e3 * infer_s, "refine_s": refine, "refine_wall_s_per_world": refine_s,
+            "settings": dataclasses.asdict(settings),
             "stop_zone": dataclasses.asdict(stop), "models": {k: str(v) for k, v in models.items()},
             "seed": seed, "truth_epsilon": truth_epsilon, "qp_decay_rate": decay_rate,
             "unconverged_worlds_allowed": unconverged, "inflation_at": inflation_at,
@@ -150,7 +177,10 @@ def write_tables(study: dict, out: Path, command: str) -> tuple[Path, Path, Path
           "random / worst-case (ground-truth gradient), ‖d‖ ≤ d_max.  Learned maps: "
           f"{study['map_inference_ms']:.0f} ms per world for the whole (v, θ) table (all models)"
           + ("; they read l and the datasets' inflation comes off their output (--inflation-at output)."
-             if study.get("inflation_at") == "output" else "."),
+             if study.get("inflation_at") == "output" else ".")
+          + (f"  Refined (`--refine {study['refine_s']:g}`): each model's table after {study['refine_s']:g} "
+             f"simulated s of the solver warm-started from it, {study['refine_wall_s_per_world']:.1f} s per world."
+             if study.get("refine_s") else ""),
           *[f"Skipped {w}: {why}." for w, why in study.get("skipped_worlds", {}).items()], "",
           *lines, "", *check_targets(rows), "", "Collisions by world (HJ filters):",
           *[f"- {name}: {', '.join(f'{w} ({n})' for w, n in worlds.items())}"

@@ -9,6 +9,7 @@ turning comparison with a ground-truth solve runs with the bundled model only.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -16,6 +17,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -161,11 +163,12 @@ def wait_for(predicate, timeout: float) -> bool:
     return bool(predicate())
 
 
-@pytest.fixture(scope="module")
-def ros(model_stem):
-    """(driver, node): the map is published (transient local) before the node exists."""
+@contextlib.contextmanager
+def driver_and_node(model_stem: Path, domain: int, **params) -> Iterator[tuple[Driver, BrtNode]]:
+    """(driver, node) on their own context and domain: the map is published (transient local) before the
+    node exists."""
     context = rclpy.Context()
-    rclpy.init(context=context, domain_id=DOMAIN)
+    rclpy.init(context=context, domain_id=domain)
     driver = Driver(context)
     executor = SingleThreadedExecutor(context=context)  # like main(): inference has its own thread
     executor.add_node(driver)
@@ -173,7 +176,8 @@ def ros(model_stem):
     spinner.start()
     driver.map_pub.publish(map_msg(occupancy()))
     time.sleep(0.2)
-    node = BrtNode(context=context, parameter_overrides=[Parameter("model_path", value=str(model_stem))])
+    overrides = [Parameter(k, value=v) for k, v in {"model_path": str(model_stem), **params}.items()]
+    node = BrtNode(context=context, parameter_overrides=overrides)
     executor.add_node(node)
     try:
         yield driver, node
@@ -183,6 +187,12 @@ def ros(model_stem):
         driver.destroy_node()
         rclpy.shutdown(context=context)
         spinner.join(timeout=2.0)
+
+
+@pytest.fixture(scope="module")
+def ros(model_stem):
+    with driver_and_node(model_stem, DOMAIN) as pair:
+        yield pair
 
 
 def settle(driver: Driver, x: float, y: float, v: float, theta: float, timeout: float = 10.0) -> dict:
@@ -550,3 +560,31 @@ def test_config_yaml_lists_every_parameter_with_its_default():
     params = yaml.safe_load((ROOT / "config" / "brt_node.yaml").read_text())["brt_node"]["ros__parameters"]
     assert params == {name: default for name, (default, _, _) in PARAMETERS.items()}
     assert all(type(params[name]) is type(default) for name, (default, _, _) in PARAMETERS.items())
+
+
+def test_refinement_takes_over_the_filter_for_its_map_only(model_stem):
+    """refine_horizon > 0: the background solve over the whole 20 m map, warm-started from the operator,
+    becomes the filter's table for that map version (it turns away from the wall, as the ground truth in
+    test_driving_into_wall_is_overridden does); a new map goes back to the operator at once and refines anew."""
+    with driver_and_node(model_stem, DOMAIN + 50, refine_horizon=1.0, refine_stage=1.0) as (driver, node):
+        theta, v = 0.3, 1.0
+        st = settle(driver, *NEAR_WALL, v, theta)
+        assert st["refinement"]["state"] in ("waiting", "running") and not st["refinement"]["error"], st
+        assert wait_for(lambda: driver.status.get("value_source") == "refined", 240.0), driver.status
+        assert wait_for(lambda: node.status()["refinement"]["state"] == "done", 30.0), node.status()  # child exits
+        st, refined = node.status(), node._refined
+        assert st["refinement"] == {"state": "done", "error": "", "horizon_s": 1.0, "settled": refined.settled,
+                                    "wall_s": refined.wall_s}, st
+        assert node._value.table is refined.table and refined.table.grid.shape[:2] == (63, 63)  # 20 m / h
+        state = np.array([*NEAR_WALL, v, theta])
+        assert st["value"] == pytest.approx(float(refined.table.value(state)[0]), abs=1e-6)
+        assert driver.set_param("epsilon", 0.7)[0]  # V <= V0 = 0.6 m: a sure intervention
+        out = driver.command(1.0, 0.0)
+        assert out is not None and (out.linear.x, out.angular.z) != (1.0, 0.0)
+        if Path(node._model_stem) == ROOT / "models" / "default":
+            assert refined.table.gradient(state)[0][3] > 1e-2 and out.angular.z > 0, out  # turn away
+        driver.map_pub.publish(map_msg(occupancy(), stamp_sec=2))
+        assert wait_for(lambda: (s := node.status())["map_stamp"] == [2, 0] and s["value_source"] == "operator",
+                        5.0), node.status()
+        assert node._refined is None or node._refined.map_version != node._map.version
+        assert wait_for(lambda: node.status()["refinement"]["state"] == "running", 10.0), node.status()  # 2 s on

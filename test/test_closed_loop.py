@@ -281,3 +281,27 @@ def test_worlds_without_a_safe_start_are_skipped_with_a_note(ci_data, tmp_path):
     with pytest.raises(ValueError, match="has a safe start"):
         filter_study.run_study([str(folder)], {}, episodes=4, part="all", settings=settings,
                                filters=["ground_truth"], progress=lambda m: None)
+
+
+def test_simulate_adds_refined_filters(ci_data, trained, tmp_path):
+    """``refine``: per model its table after the solver warm-started from it (brt_node's refine_horizon):
+    never above the prediction or l, changed by the solve, and filtered beside the model in every mode."""
+    from hjrno_ros import filter_study
+
+    _, stem = trained
+    local = copy_model(stem, tmp_path)
+    checkpoint.update_card(local, {"epsilon": 0.15})
+    solved = held_out.load([ci_data], "all")
+    predicted = held_out.predict(str(local), solved)
+    refined = filter_study.refined_tables(solved, predicted, 1.0)
+    for s, p, r in zip(solved, predicted, refined, strict=True):
+        start = np.minimum(p, s.target)
+        assert r.shape == s.grid.shape and np.all(r <= start + 1e-5) and float(np.abs(r - start).max()) > 1e-3
+    study = filter_study.run_study([str(ci_data)], {"tiny": str(local)}, episodes=4, part="all",
+                                   settings=EpisodeSettings(duration=2.0), refine=1.0, progress=lambda m: None)
+    names = [r["filter"] for r in study["rows"]]
+    eps = f"{study['truth_epsilon']:.3f}"
+    assert [n for n in names if "refined" in n] == [
+        "tiny_refined1s (eps=0.150)", "tiny_refined1s_blend (eps=0.150)", "tiny_refined1s_qp (eps=0.150)",
+        f"tiny_refined1s (eps={eps}, no model margin)"]
+    assert len(names) == 13 and all(r["episodes"] == 4 for r in study["rows"]) and study["refine_s"] == 1.0
