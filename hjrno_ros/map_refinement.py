@@ -173,7 +173,7 @@ class BackgroundRefinement:
         self._proc: subprocess.Popen | None = None
         self._dir: Path | None = None
         self._key: int | None = None
-        self._seen: int | None = None  # mtime_ns of the last result read
+        self._seen: tuple[int, int] | None = None  # (inode, mtime_ns) of the last result read (a new file a stage)
         self.error = ""
 
     @property
@@ -202,11 +202,12 @@ class BackgroundRefinement:
         path = self._dir / RESULT
         stage = None
         try:
-            mtime = path.stat().st_mtime_ns
+            st = path.stat()
+            seen = (st.st_ino, st.st_mtime_ns)
         except FileNotFoundError:
-            mtime = None
-        if mtime is not None and mtime != self._seen:
-            self._seen = mtime
+            seen = None
+        if seen is not None and seen != self._seen:
+            self._seen = seen
             try:
                 grid, values, meta = read_table(path)
                 stage = Stage(self._key, grid, values, float(meta["horizon"]), meta["settled"] == "True",
