@@ -48,7 +48,9 @@ Outputs besides the command:
   bypassed, ``reason``, ``value`` (V at the state, m), ``robot`` (the state used), ``epsilon``,
   ``inference_latency_ms``, ``filter_ms`` (time in the command callback), ages of odometry, map and
   value, ``dropped`` counters (cmd, odom, pose, map), ``counts``, ``value_grid`` (frame, origin,
-  resolution, size, centre, v, θ and ``inflation_radius`` of the published slice), ``last_map_error``, ``model``.
+  resolution, size, centre, v, θ, ``inflation_radius`` and ``source`` of the published slice),
+  ``value_source`` (operator | refined), ``refine_epsilon`` and ``refinement`` (state, error, horizon_s,
+  settled, wall_s; None when ``refine_horizon`` = 0), ``last_map_error``, ``model``.
 * ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, 1 Hz): OK (ok, intervening), WARN (bypassed),
   ERROR (fail_closed); message = reason; the status fields as key-values.
 
@@ -170,6 +172,8 @@ PARAMETERS: dict[str, tuple[Any, str, dict]] = {
                        {"read_only": True, "floating_point_range": _float_range(0.0, 600.0)}),
     "refine_stage": (4.0, "s: simulated time between the refined tables handed to the filter",
                      {"read_only": True, "floating_point_range": _float_range(0.5, 600.0)}),
+    "refine_epsilon": (-1.0, "m: epsilon while the filter reads a refined table; -1 = the value of epsilon "
+                             "(the card's is calibrated for the operator, cautious for the refined table)", {}),
     "stop_pub_timeout": (2.0, "s: keep publishing zeros while fail-closed until this long after the last nominal "
                               "command; 0 = only answer commands", {"floating_point_range": _float_range(0.0, 60.0)}),
 }
@@ -195,6 +199,9 @@ def validate_parameters(cfg: dict[str, Any], startup: bool = False) -> str | Non
         return f"inflation_radius must be finite and >= 0, or -1 (h/sqrt(2) of the model grid), got {r}"
     if not 0 <= cfg["occupied_threshold"] <= 100:
         return f"occupied_threshold must lie in 0..100, got {cfg['occupied_threshold']}"
+    r_eps = cfg["refine_epsilon"]
+    if not (math.isfinite(r_eps) and (r_eps >= 0 or r_eps == -1.0)):
+        return f"refine_epsilon must be finite and >= 0, or -1 (the value of epsilon), got {r_eps}"
     if not (math.isfinite(cfg["refine_stage"]) and cfg["refine_stage"] > 0):
         return f"refine_stage must be finite and > 0, got {cfg['refine_stage']}"
     if cfg["inference_threads"] < 1:
@@ -460,6 +467,7 @@ class BrtNode(Node):
         self._cfg = cfg
         self._load_model(cfg)
         self._settings = self._filter_settings(cfg)
+        self._refined_settings = self._refined_filter_settings(self._settings, cfg)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
 
@@ -571,6 +579,13 @@ class BrtNode(Node):
                                             blend_width=float(cfg["blend_width"]), dt=float(cfg["control_period"]),
                                             decay_rate=float(cfg["decay_rate"]))
 
+    @staticmethod
+    def _refined_filter_settings(settings: safety_filter.FilterSettings,
+                                 cfg: dict[str, Any]) -> safety_filter.FilterSettings:
+        """The filter's settings while it reads a refined table: ``refine_epsilon`` if set (>= 0)."""
+        eps = cfg["refine_epsilon"]
+        return dataclasses.replace(settings, epsilon=float(eps)) if eps >= 0 else settings
+
     # ------------------------------------------------------------------ parameters
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
         """Validate a live update as a whole (ranges were already checked by rclpy)."""
@@ -594,6 +609,7 @@ class BrtNode(Node):
                 cfg[p.name] = p.value
         names = {p.name for p in params}
         self._settings = self._filter_settings(cfg)
+        self._refined_settings = self._refined_filter_settings(self._settings, cfg)
         self._cfg = cfg
         if "control_period" in names:
             self._control_timer.timer_period_ns = int(cfg["control_period"] * 1e9)
@@ -773,7 +789,8 @@ class BrtNode(Node):
         s = table_state(state, val.theta, p.v_min, p.v_max)
         values, grads = val.table.value_and_gradient(s)
         value, grad = float(values[0]), grads[0]
-        decision = safety_filter.filter_command(p, self._settings, s, value, grad, t.linear.x, t.angular.z)
+        settings = self._refined_settings if val.source == "refined" else self._settings
+        decision = safety_filter.filter_command(p, settings, s, value, grad, t.linear.x, t.angular.z)
         if decision.intervened:
             self._cmd_pub.publish(self._command(decision.linear, decision.angular, "", header))
         else:
@@ -998,6 +1015,7 @@ class BrtNode(Node):
             "value": value,
             "robot": robot,
             "epsilon": self._settings.epsilon,
+            "refine_epsilon": self._refined_settings.epsilon if self._refiner is not None else None,
             "filter_mode": self._settings.mode,
             "inference_latency_ms": round(val.latency_ms, 2) if val else None,
             "filter_ms": self._filter_ms(),

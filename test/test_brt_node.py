@@ -578,11 +578,24 @@ def test_refinement_takes_over_the_filter_for_its_map_only(model_stem):
         assert node._value.table is refined.table and refined.table.grid.shape[:2] == (63, 63)  # 20 m / h
         state = np.array([*NEAR_WALL, v, theta])
         assert st["value"] == pytest.approx(float(refined.table.value(state)[0]), abs=1e-6)
+        assert st["refine_epsilon"] == st["epsilon"]  # -1: the value of epsilon
         assert driver.set_param("epsilon", 0.7)[0]  # V <= V0 = 0.6 m: a sure intervention
         out = driver.command(1.0, 0.0)
         assert out is not None and (out.linear.x, out.angular.z) != (1.0, 0.0)
         if Path(node._model_stem) == ROOT / "models" / "default":
             assert refined.table.gradient(state)[0][3] > 1e-2 and out.angular.z > 0, out  # turn away
+        driver.pose = (*NEAR_WALL, 3.0)  # facing away from the wall: 0 < V <= 0.6 m
+        assert wait_for(lambda: abs((driver.status.get("value_grid") or {}).get("theta", 0) - 3.0) < 0.05, 5.0)
+        assert driver.status["value_source"] == "refined" and 0 < driver.status["value"] < 0.6, driver.status
+        for name, value in (("filter_mode", "switch"), ("epsilon", 0.0)):
+            assert driver.set_param(name, value)[0], name
+        out = driver.command(1.0, 0.0)  # switch at epsilon 0 and V > 0: passes
+        assert out is not None and (out.linear.x, out.angular.z) == (1.0, 0.0), out
+        assert not driver.set_param("refine_epsilon", -0.5)[0]  # only -1 or >= 0
+        assert driver.set_param("refine_epsilon", 0.7)[0] and node.status()["refine_epsilon"] == 0.7
+        out = driver.command(1.0, 0.0)  # V < refine_epsilon: the refined table's epsilon acts, not epsilon's 0
+        assert out is not None and (out.linear.x, out.angular.z) != (1.0, 0.0), out
+        assert node._last_decision.intervened and node.status()["epsilon"] == 0.0
         driver.map_pub.publish(map_msg(occupancy(), stamp_sec=2))
         assert wait_for(lambda: (s := node.status())["map_stamp"] == [2, 0] and s["value_source"] == "operator",
                         5.0), node.status()
