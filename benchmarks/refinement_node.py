@@ -22,8 +22,9 @@ import re
 import time
 from pathlib import Path
 
-from hjrno_ros import node_bench
-from hjrno_ros.brt_node import bench_drive
+from hjrno_ros import checkpoint, map_refinement, node_bench
+from hjrno_ros.brt_node import bench_drive, resolve_model
+from hjrno_ros.grids import GridSpec
 from hjrno_ros.node_process import brt_node_process, free_domain
 
 STAGE_LINE = re.compile(r"refined value for map \d+: ([\d.]+) simulated s \((\w+ ?\w*)\), ([\d.]+) s wall")
@@ -58,10 +59,14 @@ def main() -> int:
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/refinement"))
     args = ap.parse_args()
     rows = [one_run(args.seconds, 0.0, args.stage), one_run(args.seconds, args.horizon, args.stage)]
+    far = tuple(o + node_bench.SIZE * node_bench.RESOLUTION for o in node_bench.ORIGIN)
+    model_grid = GridSpec.from_dict(checkpoint.load_card(resolve_model(""))["grid"])
+    shape = " x ".join(map(str, map_refinement.map_grid(model_grid, node_bench.ORIGIN, far).shape))
     machine = f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
     note = (f"benchmarks/refinement_node.py on {machine}, {time.strftime('%Y-%m-%d')}: {args.seconds:g} s of the node "
-            f"benchmark's load per run, the 20 m x 20 m map (400 x 400 cells) published once; refined run: "
-            f"refine_horizon {args.horizon:g} s, refine_stage {args.stage:g} s (solver grid 63 x 63 x 9 x 16). "
+            f"benchmark's load per run, its {far[0] - node_bench.ORIGIN[0]:g} m square map ({node_bench.SIZE} x "
+            f"{node_bench.SIZE} cells) published once; refined run: "
+            f"refine_horizon {args.horizon:g} s, refine_stage {args.stage:g} s (solver grid {shape}). "
             "node_cpu_share excludes the solver's child process; child_wall_s counts from the child's model load "
             "(the warm start's inference is in it).")
     keys = ["refine_horizon", "cmd_p50_ms", "cmd_p95_ms", "cmd_p99_ms", "cmd_matched", "node_cpu_share",
