@@ -49,7 +49,8 @@ Outputs besides the command:
   ``inference_latency_ms``, ``filter_ms`` (time in the command callback), ages of odometry, map and
   value, ``dropped`` counters (cmd, odom, pose, map), ``counts``, ``value_grid`` (frame, origin,
   resolution, size, centre, v, θ, ``inflation_radius`` and ``source`` of the published slice),
-  ``value_source`` (operator | refined), ``refine_epsilon`` and ``refinement`` (state, error, horizon_s,
+  ``value_source`` (operator | refined), ``refine_epsilon``, ``refine_epsilon_from_s`` (the refined stage,
+  simulated s, from which it holds) and ``refinement`` (state, error, horizon_s,
   settled, wall_s; None when ``refine_horizon`` = 0), ``last_map_error``, ``model``.
 * ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, 1 Hz): OK (ok, intervening), WARN (bypassed),
   ERROR (fail_closed); message = reason; the status fields as key-values.
@@ -89,7 +90,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profi
 from std_msgs.msg import Float32MultiArray, MultiArrayDimension, String
 from std_srvs.srv import SetBool
 
-from . import checkpoint, geometry, map_refinement, safety_filter
+from . import calibration, checkpoint, geometry, map_refinement, safety_filter
 from .grids import wrap_angle
 
 NODE_NAME = "brt_node"
@@ -172,8 +173,9 @@ PARAMETERS: dict[str, tuple[Any, str, dict]] = {
                        {"read_only": True, "floating_point_range": _float_range(0.0, 600.0)}),
     "refine_stage": (4.0, "s: simulated time between the refined tables handed to the filter",
                      {"read_only": True, "floating_point_range": _float_range(0.5, 600.0)}),
-    "refine_epsilon": (-1.0, "m: epsilon while the filter reads a refined table; -1 = the value of epsilon "
-                             "(the card's is calibrated for the operator, cautious for the refined table)", {}),
+    "refine_epsilon": (-1.0, "m: epsilon while the filter reads a refined table; -1 = the model card's "
+                             "refine_epsilon (hjrno calibrate --refine T) from stage T s on, before that stage "
+                             "or without one the value of epsilon", {}),
     "stop_pub_timeout": (2.0, "s: keep publishing zeros while fail-closed until this long after the last nominal "
                               "command; 0 = only answer commands", {"floating_point_range": _float_range(0.0, 60.0)}),
 }
@@ -207,6 +209,20 @@ def validate_parameters(cfg: dict[str, Any], startup: bool = False) -> str | Non
     if cfg["inference_threads"] < 1:
         return f"inference_threads must be >= 1, got {cfg['inference_threads']}"
     return None
+
+
+def refined_filter_settings(card: dict, settings: safety_filter.FilterSettings,
+                            cfg: dict[str, Any]) -> tuple[safety_filter.FilterSettings, float]:
+    """The filter's settings on a refined table and the stage (simulated s) from which they hold:
+    ``refine_epsilon`` if set (>= 0), from the first stage; for -1 the card's refine_epsilon from the stage
+    it was calibrated at (``hjrno calibrate --refine``); before that stage, or without one, ``settings``."""
+    eps = cfg["refine_epsilon"]
+    if eps >= 0:
+        return dataclasses.replace(settings, epsilon=float(eps)), 0.0
+    margin = calibration.refined_margin(card)
+    if margin is None:
+        return settings, 0.0
+    return dataclasses.replace(settings, epsilon=margin[0]), margin[1]
 
 
 def bundled_model_candidates(name: str = "default") -> list[Path]:
@@ -404,6 +420,7 @@ class ValueData:
     latency_ms: float
     grid_info: dict  # origin/resolution/size of the published value grid
     source: str = "operator"  # or "refined": the background solve's table over the whole map
+    horizon: float = 0.0  # refined: simulated s of solver behind the table
 
 
 @dataclasses.dataclass(frozen=True)
@@ -467,7 +484,7 @@ class BrtNode(Node):
         self._cfg = cfg
         self._load_model(cfg)
         self._settings = self._filter_settings(cfg)
-        self._refined_settings = self._refined_filter_settings(self._settings, cfg)
+        self._refined_settings, self._refined_from = refined_filter_settings(self._card, self._settings, cfg)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
 
@@ -579,13 +596,6 @@ class BrtNode(Node):
                                             blend_width=float(cfg["blend_width"]), dt=float(cfg["control_period"]),
                                             decay_rate=float(cfg["decay_rate"]))
 
-    @staticmethod
-    def _refined_filter_settings(settings: safety_filter.FilterSettings,
-                                 cfg: dict[str, Any]) -> safety_filter.FilterSettings:
-        """The filter's settings while it reads a refined table: ``refine_epsilon`` if set (>= 0)."""
-        eps = cfg["refine_epsilon"]
-        return dataclasses.replace(settings, epsilon=float(eps)) if eps >= 0 else settings
-
     # ------------------------------------------------------------------ parameters
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
         """Validate a live update as a whole (ranges were already checked by rclpy)."""
@@ -609,7 +619,7 @@ class BrtNode(Node):
                 cfg[p.name] = p.value
         names = {p.name for p in params}
         self._settings = self._filter_settings(cfg)
-        self._refined_settings = self._refined_filter_settings(self._settings, cfg)
+        self._refined_settings, self._refined_from = refined_filter_settings(self._card, self._settings, cfg)
         self._cfg = cfg
         if "control_period" in names:
             self._control_timer.timer_period_ns = int(cfg["control_period"] * 1e9)
@@ -789,7 +799,8 @@ class BrtNode(Node):
         s = table_state(state, val.theta, p.v_min, p.v_max)
         values, grads = val.table.value_and_gradient(s)
         value, grad = float(values[0]), grads[0]
-        settings = self._refined_settings if val.source == "refined" else self._settings
+        refined = val.source == "refined" and val.horizon >= self._refined_from
+        settings = self._refined_settings if refined else self._settings
         decision = safety_filter.filter_command(p, settings, s, value, grad, t.linear.x, t.angular.z)
         if decision.intervened:
             self._cmd_pub.publish(self._command(decision.linear, decision.angular, "", header))
@@ -890,7 +901,7 @@ class BrtNode(Node):
                 "theta": state.theta, "center": list(center), "inflation_radius": inflation,
                 "source": "refined" if refined else "operator"}
         self._value = ValueData(table, center, v, state.theta, time.monotonic(), m.version, latency, info,
-                                info["source"])
+                                info["source"], refined.horizon if refined else 0.0)
         self._inference_error = ""
         with self._lock:
             self._counts.inferences += 1
@@ -1016,6 +1027,7 @@ class BrtNode(Node):
             "robot": robot,
             "epsilon": self._settings.epsilon,
             "refine_epsilon": self._refined_settings.epsilon if self._refiner is not None else None,
+            "refine_epsilon_from_s": self._refined_from if self._refiner is not None else None,
             "filter_mode": self._settings.mode,
             "inference_latency_ms": round(val.latency_ms, 2) if val else None,
             "filter_ms": self._filter_ms(),

@@ -123,21 +123,48 @@ def error_rates(pred: list[np.ndarray], truth: list[np.ndarray], epsilon: float)
             "conservative_rate": mean(cons)}
 
 
+def refined_margin(card: dict) -> tuple[float, float] | None:
+    """(refine_epsilon, the refined stage in simulated s it was calibrated at) from a card, or None."""
+    entry = card.get("refine_calibration")
+    if not entry or card.get("refine_epsilon") is None:
+        return None
+    return float(card["refine_epsilon"]), float(entry["horizon_s"])
+
+
+def refined_epsilon(card: dict, horizon: float) -> float | None:
+    """The filter's ε for a table refined by ``horizon`` simulated s: the card's ``refine_epsilon`` if it was
+    calibrated at ``horizon`` or less, else the card's ε.  A later stage misses no state the calibrated one
+    caught: the tube takes a min at every solver step, so refinement only lowers the table."""
+    margin = refined_margin(card)
+    return margin[0] if margin and horizon >= margin[1] else card.get("epsilon")
+
+
 def calibrate_model(stem, folders: list, alpha: float, beta: float, n: int, seed: int = 0,
                     margin: float = DEFAULT_MARGIN, write: bool = True, unconverged: bool = False,
-                    average: bool | None = None, frames: list | None = None) -> dict:
+                    average: bool | None = None, frames: list | None = None, refine: float = 0.0) -> dict:
     """Calibrate ε on the first half of the test splits, measure on the second, write it into the card
     (``unconverged``: also use scenarios whose solve missed the tolerance; recorded in the card).
     ``average`` (None: the card's setting) calibrates the symmetry-averaged model or the plain one and
     records that choice in the card with ε, since ε only holds for the predictions it was measured on;
-    ``frames`` (None: the card's) likewise for an ensemble's member frames (checkpoint.framed_members)."""
+    ``frames`` (None: the card's) likewise for an ensemble's member frames (checkpoint.framed_members).
+    ``refine`` > 0 calibrates the model's tables after that many simulated s of the solver warm-started from
+    them (brt_node's refine_horizon) instead, and writes ``refine_epsilon`` and ``refine_calibration``:
+    the card's ε, for the operator alone, stays as it is."""
     from . import checkpoint, held_out
 
+    if not (np.isfinite(refine) and refine >= 0):
+        raise ValueError(f"refine must be finite and >= 0 (simulated s), got {refine}")
     calib, fresh = (held_out.load(folders, part, unconverged) for part in ("calibration", "fresh"))
     card = checkpoint.load_card(stem)
     averaged = bool(card.get("symmetry_average", False) if average is None else average)
     frames = card.get("member_frames") if frames is None else frames
+    if refine > 0 and write and (averaged, frames or None) != (bool(card.get("symmetry_average", False)),
+                                                               card.get("member_frames")):
+        raise ValueError("calibrating refined tables writes no model settings: leave --symmetry-average and "
+                         "--member-frames at the card's")
     pred = held_out.predict(stem, calib + fresh, averaged, frames=frames or [])  # [] = none, not the card's
+    if refine > 0:
+        pred = held_out.refine(calib + fresh, pred, refine)
     result = calibrate(pred[:len(calib)], [s.value for s in calib], alpha, beta, n, seed, margin)
     pred_fresh, truth_fresh = pred[len(calib):], [s.value for s in fresh]
     entry = {**result.as_dict(), "seed": seed, "data": [str(f) for f in folders], "unconverged_allowed": unconverged,
@@ -145,7 +172,11 @@ def calibrate_model(stem, folders: list, alpha: float, beta: float, n: int, seed
              "calibration_scenarios": [s.name for s in calib], "fresh_scenarios": [s.name for s in fresh],
              "fresh_before": error_rates(pred_fresh, truth_fresh, 0.0),
              "fresh_after": error_rates(pred_fresh, truth_fresh, result.epsilon)}
-    if write:
+    if refine > 0:
+        entry["horizon_s"] = float(refine)
+        if write:
+            checkpoint.update_card(stem, {"refine_epsilon": result.epsilon, "refine_calibration": entry})
+    elif write:
         checkpoint.update_card(stem, {"epsilon": result.epsilon, "symmetry_average": averaged,
                                       "member_frames": frames or None, "calibration": entry})
     return entry

@@ -214,9 +214,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     folders = _data_folders(args.data, args.model, args.allow_unconverged)
     entry = calibrate_model(args.model, folders, args.alpha, args.beta, args.draws, args.seed, args.margin,
                             write=not args.dry_run, unconverged=args.allow_unconverged,
-                            average=args.symmetry_average, frames=args.member_frames)
+                            average=args.symmetry_average, frames=args.member_frames, refine=args.refine)
+    what = f"refine_epsilon (tables refined {args.refine:g} simulated s)" if args.refine else "epsilon"
     before, after = entry["fresh_before"], entry["fresh_after"]
-    print(f"epsilon = {entry['epsilon']:.4f} m (margin {entry['margin']:g} m, alpha {args.alpha}, beta {args.beta}, "
+    print(f"{what} = {entry['epsilon']:.4f} m (margin {entry['margin']:g} m, alpha {args.alpha}, beta {args.beta}, "
           f"n {entry['n']}, rank {entry['rank']}, {entry['scenarios']} calibration scenarios from "
           f"{', '.join(folders)}; {'symmetry-averaged' if entry['symmetry_average'] else 'plain'} model)")
     print(f"P(V_gt<=0 | V_pred>eps) upper bound {entry['precision_bound']:.2e} (estimate "
@@ -224,7 +225,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     for name, r in (("before (eps=0)", before), ("after", after)):
         print(f"fresh split {name}: miss rate {r['miss_rate']:.4f}, false-safe rate {r['false_safe_rate']:.2e}, "
               f"conservative rate {r['conservative_rate']:.4f}")
-    print("dry run: card unchanged" if args.dry_run else f"wrote epsilon and symmetry_average into {args.model}.json")
+    written = "refine_epsilon and refine_calibration" if args.refine else "epsilon and symmetry_average"
+    print("dry run: card unchanged" if args.dry_run else f"wrote {written} into {args.model}.json")
     return 0
 
 
@@ -384,6 +386,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="ensembles: the D4 elements (0-7, slices.symmetry) each member predicts in, averaged per "
                    "member, e.g. '0,5;1,6;3,4' (one pass per element); recorded in the card with epsilon "
                    "(default: the card's; 'none' clears)")
+    p.add_argument("--refine", type=float, default=0.0, help="s: calibrate the model's tables after this many "
+                   "simulated s of the solver warm-started from them (brt_node's refine_horizon) instead; writes "
+                   "refine_epsilon, which the node and simulate --refine use from that stage on (default 0: off)")
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("simulate", help="closed-loop episodes: collisions and interventions per safety filter")

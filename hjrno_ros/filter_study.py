@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 from . import closed_loop, held_out
-from .calibration import DEFAULT_MARGIN
+from .calibration import DEFAULT_MARGIN, refined_epsilon
 from .closed_loop import EpisodeSettings, World
 from .safety_filter import MODES, FilterSettings, filter_batch
 from .stop_zone import StopZoneSettings, stop_zone_filter
@@ -59,17 +59,6 @@ def refined_label(label: str, horizon: float) -> str:
     return f"{label}_refined{horizon:g}s"
 
 
-def refined_tables(solved: list[held_out.Solved], predicted: list, horizon: float) -> list:
-    """Each world's predicted table after ``horizon`` simulated s of the solver warm-started from it."""
-    from .map_refinement import refine
-
-    out = []
-    for s, p in zip(solved, predicted, strict=True):
-        *_, (_, table, _) = refine(s.scenario.dynamics(), s.grid, s.target, p, horizon, horizon)
-        out.append(table)
-    return out
-
-
 def make_filter(choice: FilterChoice, world: World, tables: dict[str, ValueTable],
                 stop: StopZoneSettings, dt: float, decay_rate: float) -> closed_loop.Filter | None:
     if choice.kind == "none":
@@ -89,7 +78,8 @@ def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, s
     """Run every filter over ≥ ``episodes`` episodes spread evenly over the held-out worlds
     (``inflation_at``: how the learned maps meet the datasets' inflation, ``held_out.INFLATION_AT``).
     ``refine`` > 0 adds per model a filter on its table refined by ``refine`` simulated s of the solver
-    warm-started from it (what brt_node's ``refine_horizon`` does), with the model's card."""
+    warm-started from it (what brt_node's ``refine_horizon`` does), with the card's ε for that table
+    (``calibration.refined_epsilon``)."""
     from . import checkpoint
 
     solved = held_out.load(folders, part, unconverged)
@@ -105,7 +95,8 @@ def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, s
         raise ValueError(f"no held-out world in {folders} ({part}) has a safe start")
     cards = {label: checkpoint.load_card(stem) for label, stem in models.items()}
     if refine > 0:
-        cards.update({refined_label(label, refine): card for label, card in list(cards.items())})
+        cards.update({refined_label(label, refine): {**card, "epsilon": refined_epsilon(card, refine)}
+                      for label, card in list(cards.items())})
     choices = default_filters(cards, truth_epsilon)
     if filters:
         choices = [c for c in choices if any(c.name.startswith(f) for f in filters)]
@@ -117,7 +108,7 @@ def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, s
     refine_s = 0.0
     if refine > 0:
         start = time.perf_counter()
-        predicted.update({refined_label(label, refine): refined_tables(solved, p, refine)
+        predicted.update({refined_label(label, refine): held_out.refine(solved, p, refine)
                           for label, p in list(predicted.items())})
         refine_s = (time.perf_counter() - start) / max(len(solved), 1)
         progress(f"refined {len(models)} model(s) for {refine:g} simulated s: {refine_s:.1f} s per world")

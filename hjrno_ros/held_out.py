@@ -70,6 +70,18 @@ def has_halves(folder: str | Path, unconverged: bool = False) -> bool:
     return len(split.scenarios) >= 2
 
 
+def refine(solved: list[Solved], predicted: list[np.ndarray], horizon: float) -> list[np.ndarray]:
+    """Each scenario's predicted table after ``horizon`` simulated s of the solver warm-started from it
+    (what brt_node's ``refine_horizon`` does over a map)."""
+    from .map_refinement import refine as solve_from
+
+    out = []
+    for s, p in zip(solved, predicted, strict=True):
+        *_, (_, table, _) = solve_from(s.scenario.dynamics(), s.grid, s.target, p, horizon, horizon)
+        out.append(table)
+    return out
+
+
 def predict(stem: str | Path, solved: list[Solved], average: bool | None = None,
             inflation_at: str = "input", frames: list | None = None) -> list[np.ndarray]:
     """The model's V on each scenario's whole grid (metres), min'd with l − r as the node does

@@ -25,6 +25,7 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 
+from conftest import copy_model  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
 from geometry_msgs.msg import PoseWithCovarianceStamped, Twist, TwistStamped  # noqa: E402
 from nav_msgs.msg import OccupancyGrid, Odometry  # noqa: E402
@@ -39,7 +40,8 @@ from std_msgs.msg import Float32MultiArray, String  # noqa: E402
 from std_srvs.srv import SetBool  # noqa: E402
 
 from hjrno_ros import checkpoint, geometry  # noqa: E402
-from hjrno_ros.brt_node import INFERENCE_NICE, BrtNode  # noqa: E402
+from hjrno_ros.brt_node import INFERENCE_NICE, BrtNode, refined_filter_settings  # noqa: E402
+from hjrno_ros.safety_filter import FilterSettings  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DOMAIN = 1 + os.getpid() % 50  # Linux: ids <= 101 avoid the ephemeral port range
@@ -562,11 +564,24 @@ def test_config_yaml_lists_every_parameter_with_its_default():
     assert all(type(params[name]) is type(default) for name, (default, _, _) in PARAMETERS.items())
 
 
-def test_refinement_takes_over_the_filter_for_its_map_only(model_stem):
+def test_refined_epsilon_comes_from_the_parameter_then_the_card_then_epsilon():
+    """refine_epsilon >= 0 holds from the first stage; -1 takes the card's refine_epsilon from the stage it
+    was calibrated at; without one in the card the refined table keeps epsilon's settings."""
+    base = FilterSettings(epsilon=0.2, mode="blend")
+    card = {"epsilon": 0.2, "refine_epsilon": 0.12, "refine_calibration": {"horizon_s": 16.0}}
+    assert refined_filter_settings(card, base, {"refine_epsilon": 0.3}) == (FilterSettings(0.3, "blend"), 0.0)
+    assert refined_filter_settings(card, base, {"refine_epsilon": -1.0}) == (FilterSettings(0.12, "blend"), 16.0)
+    assert refined_filter_settings({"epsilon": 0.2}, base, {"refine_epsilon": -1.0}) == (base, 0.0)
+
+
+def test_refinement_takes_over_the_filter_for_its_map_only(model_stem, tmp_path):
     """refine_horizon > 0: the background solve over the whole 20 m map, warm-started from the operator,
     becomes the filter's table for that map version (it turns away from the wall, as the ground truth in
-    test_driving_into_wall_is_overridden does); a new map goes back to the operator at once and refines anew."""
-    with driver_and_node(model_stem, DOMAIN + 50, refine_horizon=1.0, refine_stage=1.0) as (driver, node):
+    test_driving_into_wall_is_overridden does), with the card's refine_epsilon from the stage it was
+    calibrated at; a new map goes back to the operator at once and refines anew."""
+    stem = copy_model(model_stem, tmp_path)
+    checkpoint.update_card(stem, {"refine_epsilon": 0.7, "refine_calibration": {"horizon_s": 1.0}})
+    with driver_and_node(stem, DOMAIN + 50, refine_horizon=1.0, refine_stage=1.0) as (driver, node):
         theta, v = 0.3, 1.0
         st = settle(driver, *NEAR_WALL, v, theta)
         assert st["refinement"]["state"] in ("waiting", "running") and not st["refinement"]["error"], st
@@ -578,20 +593,26 @@ def test_refinement_takes_over_the_filter_for_its_map_only(model_stem):
         assert node._value.table is refined.table and refined.table.grid.shape[:2] == (63, 63)  # 20 m / h
         state = np.array([*NEAR_WALL, v, theta])
         assert st["value"] == pytest.approx(float(refined.table.value(state)[0]), abs=1e-6)
-        assert st["refine_epsilon"] == st["epsilon"]  # -1: the value of epsilon
+        assert (st["refine_epsilon"], st["refine_epsilon_from_s"]) == (0.7, 1.0)  # -1: the card's, from 1 s on
         assert driver.set_param("epsilon", 0.7)[0]  # V <= V0 = 0.6 m: a sure intervention
         out = driver.command(1.0, 0.0)
         assert out is not None and (out.linear.x, out.angular.z) != (1.0, 0.0)
-        if Path(node._model_stem) == ROOT / "models" / "default":
+        if model_stem == ROOT / "models" / "default":
             assert refined.table.gradient(state)[0][3] > 1e-2 and out.angular.z > 0, out  # turn away
         driver.pose = (*NEAR_WALL, 3.0)  # facing away from the wall: 0 < V <= 0.6 m
         assert wait_for(lambda: abs((driver.status.get("value_grid") or {}).get("theta", 0) - 3.0) < 0.05, 5.0)
         assert driver.status["value_source"] == "refined" and 0 < driver.status["value"] < 0.6, driver.status
         for name, value in (("filter_mode", "switch"), ("epsilon", 0.0)):
             assert driver.set_param(name, value)[0], name
-        out = driver.command(1.0, 0.0)  # switch at epsilon 0 and V > 0: passes
+        out = driver.command(1.0, 0.0)  # V < the card's refine_epsilon 0.7: epsilon's 0 is not what acts
+        assert out is not None and (out.linear.x, out.angular.z) != (1.0, 0.0), out
+        node._refined_from = 2.0  # as if calibrated at 2 s: this 1 s table takes epsilon's 0, and V > 0 passes
+        out = driver.command(1.0, 0.0)
         assert out is not None and (out.linear.x, out.angular.z) == (1.0, 0.0), out
         assert not driver.set_param("refine_epsilon", -0.5)[0]  # only -1 or >= 0
+        assert driver.set_param("refine_epsilon", 0.0)[0] and node.status()["refine_epsilon_from_s"] == 0.0
+        out = driver.command(1.0, 0.0)  # switch at refine_epsilon 0 and V > 0: passes
+        assert out is not None and (out.linear.x, out.angular.z) == (1.0, 0.0), out
         assert driver.set_param("refine_epsilon", 0.7)[0] and node.status()["refine_epsilon"] == 0.7
         out = driver.command(1.0, 0.0)  # V < refine_epsilon: the refined table's epsilon acts, not epsilon's 0
         assert out is not None and (out.linear.x, out.angular.z) != (1.0, 0.0), out

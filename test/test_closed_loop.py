@@ -293,7 +293,7 @@ def test_simulate_adds_refined_filters(ci_data, trained, tmp_path):
     checkpoint.update_card(local, {"epsilon": 0.15})
     solved = held_out.load([ci_data], "all")
     predicted = held_out.predict(str(local), solved)
-    refined = filter_study.refined_tables(solved, predicted, 1.0)
+    refined = held_out.refine(solved, predicted, 1.0)
     for s, p, r in zip(solved, predicted, refined, strict=True):
         start = np.minimum(p, s.target)
         assert r.shape == s.grid.shape and np.all(r <= start + 1e-5) and float(np.abs(r - start).max()) > 1e-3
@@ -305,3 +305,34 @@ def test_simulate_adds_refined_filters(ci_data, trained, tmp_path):
         "tiny_refined1s (eps=0.150)", "tiny_refined1s_blend (eps=0.150)", "tiny_refined1s_qp (eps=0.150)",
         f"tiny_refined1s (eps={eps}, no model margin)"]
     assert len(names) == 13 and all(r["episodes"] == 4 for r in study["rows"]) and study["refine_s"] == 1.0
+
+
+def test_calibrate_refine_writes_a_margin_for_refined_tables(trained, tmp_path):
+    """``calibrate --refine T`` calibrates the tables the solver refined for T simulated s: it writes
+    refine_epsilon (≥ δ) for stages ≥ T and leaves the operator's ε as it was; simulate --refine uses it."""
+    from hjrno_ros import filter_study
+
+    _, stem = trained
+    local = copy_model(stem, tmp_path)
+    checkpoint.update_card(local, {"epsilon": 0.15})
+    run = subprocess.run([*HJRNO, "calibrate", "--model", str(local), "--draws", "2000", "--alpha", "0.05",
+                          "--refine", "1"], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    card = checkpoint.load_card(local)
+    eps, entry = card["refine_epsilon"], card["refine_calibration"]
+    assert card["epsilon"] == 0.15 and "calibration" not in card and eps >= 0.1 and entry["horizon_s"] == 1.0
+    assert entry["fresh_after"]["epsilon"] == eps and entry["alpha"] == 0.05
+    folders = card["dataset"]["folders"]
+    solved = held_out.load(folders, "calibration")
+    refined = held_out.refine(solved, held_out.predict(local, solved), 1.0)
+    assert eps == calibration.calibrate(refined, [s.value for s in solved], 0.05, 0.05, 2000, 0, 0.1).epsilon
+    assert calibration.refined_epsilon(card, 2.0) == eps and calibration.refined_epsilon(card, 0.5) == 0.15
+    for horizon, shown in ((1.0, eps), (0.5, 0.15)):
+        study = filter_study.run_study(folders, {"tiny": str(local)}, episodes=2,
+                                       settings=EpisodeSettings(duration=1.0), refine=horizon,
+                                       filters=["tiny_refined"], progress=lambda m: None)
+        assert study["rows"][0]["filter"] == f"tiny_refined{horizon:g}s (eps={shown:.3f})", study["rows"][0]
+    run = subprocess.run([*HJRNO, "calibrate", "--model", str(local), "--draws", "2000", "--alpha", "0.05",
+                          "--refine", "1", "--symmetry-average"], capture_output=True, text=True)
+    assert run.returncode == 2 and "card's" in run.stderr and len(run.stderr.strip().splitlines()) == 1
+    assert checkpoint.load_card(local) == card
