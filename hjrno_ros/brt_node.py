@@ -173,6 +173,9 @@ PARAMETERS: dict[str, tuple[Any, str, dict]] = {
                        {"read_only": True, "floating_point_range": _float_range(0.0, 600.0)}),
     "refine_stage": (4.0, "s: simulated time between the refined tables handed to the filter",
                      {"read_only": True, "floating_point_range": _float_range(0.5, 600.0)}),
+    "refine_cpus": (0, "CPU cores the refinement process may run on (the highest-numbered of the node's); "
+                       "0 = all but one, so the command path keeps a core to itself",
+                    {"read_only": True, "integer_range": [IntegerRange(from_value=0, to_value=1024, step=1)]}),
     "refine_epsilon": (-1.0, "m: epsilon while the filter reads a refined table; -1 = the model card's "
                              "refine_epsilon (hjrno calibrate --refine T) from stage T s on, before that stage "
                              "or without one the value of epsilon", {}),
@@ -208,6 +211,8 @@ def validate_parameters(cfg: dict[str, Any], startup: bool = False) -> str | Non
         return f"refine_stage must be finite and > 0, got {cfg['refine_stage']}"
     if cfg["inference_threads"] < 1:
         return f"inference_threads must be >= 1, got {cfg['inference_threads']}"
+    if cfg["refine_cpus"] < 0:
+        return f"refine_cpus must be >= 0 (0 = all but one), got {cfg['refine_cpus']}"
     return None
 
 
@@ -432,6 +437,7 @@ class RefinedValue:
     horizon: float  # simulated s of solver so far
     settled: bool
     wall_s: float
+    cpus: int  # cores the solver process could run on
 
 
 def table_state(state: RobotState, table_theta: float, v_lo: float, v_hi: float) -> np.ndarray:
@@ -501,7 +507,8 @@ class BrtNode(Node):
         self._value: ValueData | None = None
         self._inference_error = ""
         self._sd_dirty = False
-        self._refiner = map_refinement.BackgroundRefinement() if cfg["refine_horizon"] > 0 else None
+        self._refiner = (map_refinement.BackgroundRefinement(int(cfg["refine_cpus"])) if cfg["refine_horizon"] > 0
+                         else None)
         self._refine_version: int | None = None  # map version the refinement runs (or ran) for
         self._refine_error = ""
         self._refined: RefinedValue | None = None
@@ -942,9 +949,10 @@ class BrtNode(Node):
             from .value_table import ValueTable
 
             self._refined = RefinedValue(ValueTable(stage.grid, stage.values), m.version, stage.horizon,
-                                         stage.settled, stage.wall_s)
+                                         stage.settled, stage.wall_s, stage.cpus)
             self.get_logger().info(f"refined value for map {m.version}: {stage.horizon:g} simulated s "
-                                   f"({'settled' if stage.settled else 'not settled'}), {stage.wall_s:.1f} s wall")
+                                   f"({'settled' if stage.settled else 'not settled'}), {stage.wall_s:.1f} s wall "
+                                   f"on {stage.cpus} core(s)")
 
     def _usable_refinement(self, m: MapData, state: RobotState) -> RefinedValue | None:
         """The refined table if it is the current map's and the robot is inside it, two x-y cells from its edge."""
@@ -1055,7 +1063,8 @@ class BrtNode(Node):
         state = ("failed" if self._refine_error else "running" if self._refiner.running
                  else "done" if current else "waiting")
         return {"state": state, "error": self._refine_error, "horizon_s": r.horizon if current else 0.0,
-                "settled": bool(current and r.settled), "wall_s": r.wall_s if current else None}
+                "settled": bool(current and r.settled), "wall_s": r.wall_s if current else None,
+                "cpus": r.cpus if current else None}
 
     def _filter_ms(self) -> dict[str, float] | None:
         """Time spent in the command callback (check, V and ∇V, filter, publish) over the last 200 commands."""

@@ -150,7 +150,7 @@ def run_request(workdir: Path) -> None:
     for done, table, settled in refine(DynamicDubinsCar(vf.params), grid, broadcast_target(v0, grid), initial,
                                        float(meta["horizon"]), float(meta["stage"])):
         info = {"grid": meta["grid"], "horizon": repr(done), "settled": str(settled),
-                "wall_s": f"{time.perf_counter() - start:.2f}"}
+                "wall_s": f"{time.perf_counter() - start:.2f}", "cpus": str(len(os.sched_getaffinity(0)))}
         atomic_write(workdir / RESULT, lambda tmp, t=table, i=info: save_file({"values": t}, tmp, metadata=i))
 
 
@@ -164,12 +164,25 @@ class Stage:
     horizon: float
     settled: bool
     wall_s: float
+    cpus: int  # cores the child could run on (its affinity)
+
+
+def child_cpus(requested: int, available: set[int]) -> set[int]:
+    """The cores the refinement child may run on: ``requested`` of ``available`` (the highest-numbered);
+    0 = all but one, so that the node's command path keeps a core the solver never takes; at least one."""
+    ordered = sorted(available)
+    n = len(ordered) - 1 if requested == 0 else requested
+    return set(ordered[-max(1, min(n, len(ordered))):])
 
 
 class BackgroundRefinement:
-    """At most one refinement child process (nice 19) at a time, keyed by the caller's map version."""
+    """At most one refinement child process (nice 19, on ``child_cpus(cpus, ...)``) at a time, keyed by the
+    caller's map version."""
 
-    def __init__(self) -> None:
+    def __init__(self, cpus: int = 0) -> None:
+        if cpus < 0:
+            raise ValueError(f"cpus must be >= 0 (0 = all but one), got {cpus}")
+        self.cpus = cpus
         self._proc: subprocess.Popen | None = None
         self._dir: Path | None = None
         self._key: int | None = None
@@ -189,11 +202,19 @@ class BackgroundRefinement:
         self._proc = subprocess.Popen([sys.executable, "-m", "hjrno_ros.map_refinement", str(self._dir)],
                                       stdout=self._log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                       env={**os.environ, "XLA_PYTHON_CLIENT_PREALLOCATE": "false"})
+        self._deprioritise(self._proc.pid)
+        self._key, self._seen, self.error = key, None, ""
+
+    def _deprioritise(self, pid: int) -> None:
+        """Nice 19 and the cores of ``child_cpus``, set before the child starts any thread (all inherit them)."""
         try:
-            os.setpriority(os.PRIO_PROCESS, self._proc.pid, min(19, os.getpriority(os.PRIO_PROCESS, 0) + CHILD_NICE))
+            os.setpriority(os.PRIO_PROCESS, pid, min(19, os.getpriority(os.PRIO_PROCESS, 0) + CHILD_NICE))
         except OSError:
             pass  # the child already finished, or the OS refuses: it runs at the node's priority
-        self._key, self._seen, self.error = key, None, ""
+        try:
+            os.sched_setaffinity(pid, child_cpus(self.cpus, os.sched_getaffinity(0)))
+        except (OSError, AttributeError):  # finished, refused, or no affinity on this OS: the node's cores
+            pass
 
     def poll(self) -> Stage | None:
         """The newest stage not read yet, or None; a failed child leaves ``error`` (one line)."""
@@ -211,7 +232,7 @@ class BackgroundRefinement:
             try:
                 grid, values, meta = read_table(path)
                 stage = Stage(self._key, grid, values, float(meta["horizon"]), meta["settled"] == "True",
-                              float(meta["wall_s"]))
+                              float(meta["wall_s"]), int(meta["cpus"]))
             except (ValueError, KeyError) as err:
                 self.error = f"refinement result refused: {err}"
         if self._proc is not None and self._proc.poll() not in (None, 0) and not self.error:

@@ -581,7 +581,7 @@ def test_refinement_takes_over_the_filter_for_its_map_only(model_stem, tmp_path)
     calibrated at; a new map goes back to the operator at once and refines anew."""
     stem = copy_model(model_stem, tmp_path)
     checkpoint.update_card(stem, {"refine_epsilon": 0.7, "refine_calibration": {"horizon_s": 1.0}})
-    with driver_and_node(stem, DOMAIN + 50, refine_horizon=1.0, refine_stage=1.0) as (driver, node):
+    with driver_and_node(stem, DOMAIN + 50, refine_horizon=1.0, refine_stage=1.0, refine_cpus=1) as (driver, node):
         theta, v = 0.3, 1.0
         st = settle(driver, *NEAR_WALL, v, theta)
         assert st["refinement"]["state"] in ("waiting", "running") and not st["refinement"]["error"], st
@@ -589,7 +589,7 @@ def test_refinement_takes_over_the_filter_for_its_map_only(model_stem, tmp_path)
         assert wait_for(lambda: node.status()["refinement"]["state"] == "done", 30.0), node.status()  # child exits
         st, refined = node.status(), node._refined
         assert st["refinement"] == {"state": "done", "error": "", "horizon_s": 1.0, "settled": refined.settled,
-                                    "wall_s": refined.wall_s}, st
+                                    "wall_s": refined.wall_s, "cpus": 1}, st  # refine_cpus=1
         assert node._value.table is refined.table and refined.table.grid.shape[:2] == (63, 63)  # 20 m / h
         state = np.array([*NEAR_WALL, v, theta])
         assert st["value"] == pytest.approx(float(refined.table.value(state)[0]), abs=1e-6)

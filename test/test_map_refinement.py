@@ -7,6 +7,7 @@ process over real files.
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import time
@@ -106,6 +107,16 @@ def wait_stage(r: mr.BackgroundRefinement, timeout: float = 240.0) -> mr.Stage |
     return None
 
 
+def test_child_cpus_leaves_the_node_a_core():
+    assert mr.child_cpus(0, {0, 1}) == {1}
+    assert mr.child_cpus(0, {0, 2, 5, 7}) == {2, 5, 7}
+    assert mr.child_cpus(0, {3}) == {3}  # one core: shared, never none
+    assert mr.child_cpus(2, {0, 1, 2, 3}) == {2, 3}
+    assert mr.child_cpus(9, {0, 1}) == {0, 1}
+    with pytest.raises(ValueError, match="cpus must be >= 0"):
+        mr.BackgroundRefinement(-1)
+
+
 def test_background_process_writes_the_in_process_result(vf, one_window):
     grid, v0, w = one_window
     target = mr.broadcast_target(v0, grid)
@@ -116,6 +127,7 @@ def test_background_process_writes_the_in_process_result(vf, one_window):
         stage = wait_stage(r)
         assert stage is not None, r.error
         assert (stage.key, stage.grid, stage.horizon, stage.settled) == (7, grid, 1.0, settled)
+        assert stage.cpus == len(mr.child_cpus(0, os.sched_getaffinity(0)))  # the child ran on those cores
         assert np.allclose(stage.values, expect, atol=1e-5)
         workdir = r._dir
         assert r.poll() is None  # each stage is read once
