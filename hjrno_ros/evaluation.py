@@ -180,7 +180,8 @@ def record(row: dict, out: str | Path) -> Path:
 
 
 def error_figure(model, card: dict, test, path: str | Path) -> Path:
-    """Ground truth | prediction | error for the first test sample at mid speed, θ = 0."""
+    """Ground truth | prediction | error for the first test sample: the car at mid speed and θ = 0,
+    Air3D at relative heading ψ = 0 (the middle of each axis)."""
     from .plotting import plt, save_figure
 
     spec = InputSpec.from_dict(card["inputs"])
@@ -199,7 +200,8 @@ def error_figure(model, card: dict, test, path: str | Path) -> Path:
         ax.set_title(title, fontsize=10)
         ax.set_aspect("equal")
         fig.colorbar(im, ax=ax, shrink=0.8)
-    return save_figure(fig, path, f"{test.config.name}: test sample 0, mid v, θ = 0")
+    where = "mid v, θ = 0" if test.grid.ndim == 4 else "ψ = 0"
+    return save_figure(fig, path, f"{test.config.name}: test sample 0, {where}")
 
 
 def diagonal_figure(model, card: dict, test, path: str | Path) -> Path:
