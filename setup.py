@@ -28,7 +28,7 @@ setup(
     entry_points={
         "console_scripts": [
             "hjrno = hjrno_ros.cli:main",
-            "brt_node = hjrno_ros.brt_node:main",
+            "brt_node = hjrno_ros.ros.node:main",
         ],
     },
 )

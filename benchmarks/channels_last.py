@@ -14,12 +14,12 @@ import time
 from pathlib import Path
 
 import torch
-
-from hjrno_ros import benchmarks, checkpoint
 from hjrno_ros.evaluation import median_ms
 from hjrno_ros.operators import build_model
 from hjrno_ros.operators.cnn import CNN
 from hjrno_ros.value_function import channels_last_cnns
+
+from hjrno_ros import benchmarks, checkpoint
 
 
 def row(name: str, model: torch.nn.Module, batch: int, n: int = 32, channels: int = 4, scale: float = 1.0) -> dict:

@@ -12,10 +12,10 @@ fine x-y lattice (STEP m) at the table's speeds and headings.  Explains why a fi
 import argparse
 
 import numpy as np
-
-from hjrno_ros import held_out
 from hjrno_ros.geometry import union_sdf
 from hjrno_ros.value_table import ValueTable
+
+from hjrno_ros import held_out
 
 STEP = 0.025  # m
 

@@ -10,12 +10,12 @@ of the safe control) have the ground truth's sign over the 2 s before?  Same wor
 import argparse
 
 import numpy as np
-
-from hjrno_ros import checkpoint, closed_loop, filter_study, held_out
 from hjrno_ros.closed_loop import EpisodeSettings, World
 from hjrno_ros.safety_filter import FilterSettings
 from hjrno_ros.stop_zone import StopZoneSettings
 from hjrno_ros.value_table import ValueTable
+
+from hjrno_ros import checkpoint, closed_loop, filter_study, held_out
 
 BEFORE = 40  # steps (2 s) before V_gt ≤ 0 over which the turn sign is compared
 

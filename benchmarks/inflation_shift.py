@@ -11,9 +11,9 @@ import argparse
 import time
 
 import numpy as np
+from hjrno_ros.solver import solve
 
 from hjrno_ros import dataset
-from hjrno_ros.solver import solve
 
 
 def main() -> None:

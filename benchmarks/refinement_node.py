@@ -23,10 +23,11 @@ import re
 import time
 from pathlib import Path
 
-from hjrno_ros import checkpoint, map_refinement, node_bench
 from hjrno_ros.brt_node import bench_drive, resolve_model
 from hjrno_ros.grids import GridSpec
 from hjrno_ros.node_process import brt_node_process, free_domain
+
+from hjrno_ros import checkpoint, map_refinement, node_bench
 
 STAGE_LINE = re.compile(r"refined value for map \d+: ([\d.]+) simulated s \((\w+ ?\w*)\), ([\d.]+) s wall")
 

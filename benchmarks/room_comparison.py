@@ -11,9 +11,8 @@ import argparse
 import json
 from pathlib import Path
 
-from scipy import stats
-
 from hjrno_ros.dataset import load_split
+from scipy import stats
 
 
 def main() -> None:

@@ -10,9 +10,9 @@ import time
 from pathlib import Path
 
 import torch
+from hjrno_ros.evaluation import median_ms
 
 from hjrno_ros import benchmarks, checkpoint
-from hjrno_ros.evaluation import median_ms
 
 
 def main(stem: str = "models/default", batches=(1, 2, 4, 8, 16), stacks=(1, 8, 16, 32)) -> int:

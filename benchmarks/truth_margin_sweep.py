@@ -3,10 +3,11 @@
     .venv/bin/python benchmarks/truth_margin_sweep.py > benchmarks/results/closed_loop_history/truth_margin_sweep.txt
 """
 
-from hjrno_ros import closed_loop, filter_study, held_out
 from hjrno_ros.closed_loop import EpisodeSettings, World
 from hjrno_ros.stop_zone import StopZoneSettings
 from hjrno_ros.value_table import ValueTable
+
+from hjrno_ros import closed_loop, filter_study, held_out
 
 
 def main(folders=("data/single32", "data/two32"), per_world: int = 8) -> None:

@@ -23,14 +23,14 @@ import time
 from pathlib import Path
 
 import numpy as np
-
-from hjrno_ros import closed_loop, held_out
 from hjrno_ros.checkpoint import load_card
 from hjrno_ros.closed_loop import EpisodeSettings, World
 from hjrno_ros.dynamics import CarParams, car_optimal_control
 from hjrno_ros.filter_study import TRUTH
 from hjrno_ros.safety_filter import FilterSettings, filter_batch
 from hjrno_ros.value_table import ValueTable
+
+from hjrno_ros import closed_loop, held_out
 
 STEPS = 10  # RK4 steps of each look-ahead rollout
 MIN_SLOPE = 0.01 / (2 * np.pi / 8)  # m/rad: |∂V_gt/∂θ| below this (theta_difference.py's MIN_DIFF) leaves the turn moot

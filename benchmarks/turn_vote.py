@@ -18,16 +18,16 @@ import argparse
 
 import numpy as np
 import torch
-from theta_difference import scored, step
-from turn_lookahead import collisions_by_world, rollout
-
-from hjrno_ros import checkpoint, closed_loop, held_out
 from hjrno_ros.closed_loop import EpisodeSettings, World
 from hjrno_ros.dynamics import car_optimal_control
 from hjrno_ros.evaluation import predict_table, sample_params
 from hjrno_ros.safety_filter import FilterSettings, control_to_twist, filter_batch, nominal_weight
 from hjrno_ros.slices import InputSpec
 from hjrno_ros.value_table import ValueTable
+from theta_difference import scored, step
+from turn_lookahead import collisions_by_world, rollout
+
+from hjrno_ros import checkpoint, closed_loop, held_out
 
 VARIANTS = ("plain", "straight", "brake", "map check")
 CHECK_S = 1.0  # s: the map check's rollout

@@ -26,9 +26,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-from theta_difference import agreement, step
-
-from hjrno_ros import closed_loop, held_out
 from hjrno_ros.checkpoint import load_card
 from hjrno_ros.closed_loop import EpisodeSettings, World
 from hjrno_ros.dataset import load_split
@@ -37,6 +34,9 @@ from hjrno_ros.safety_filter import FilterSettings
 from hjrno_ros.solver import solve
 from hjrno_ros.stop_zone import StopZoneSettings
 from hjrno_ros.value_table import ValueTable
+from theta_difference import agreement, step
+
+from hjrno_ros import closed_loop, held_out
 
 TRUTH_EPSILON = 0.1  # m: the ground-truth filter's margin in the closed-loop table
 

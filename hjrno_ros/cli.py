@@ -19,8 +19,8 @@ import sys
 import time
 from pathlib import Path
 
-from . import __version__
-from .calibration import DEFAULT_MARGIN
+from hjrno_ros import __version__
+from hjrno_ros.learning.calibration import DEFAULT_MARGIN
 
 
 def _shape(text: str) -> tuple[int, ...]:
@@ -51,9 +51,11 @@ def cmd_solve(args: argparse.Namespace) -> int:
     """Solve one reference problem to V∞; write HDF5 (+ PNG) and print the convergence report."""
     from tqdm import tqdm
 
-    from . import plotting, problems, versions
-    from .h5store import write_solution
-    from .solver import solve
+    from hjrno_ros import versions
+    from hjrno_ros.datasets.h5store import write_solution
+    from hjrno_ros.studies import plotting
+    from hjrno_ros.truth import problems
+    from hjrno_ros.truth.solver import solve
 
     problem = problems.make_problem(args.scenario, args.grid)
     options = dict(problem.solve_options)
@@ -98,7 +100,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
 
 def cmd_generate(args: argparse.Namespace) -> int:
     """Solve an experiment's train and test splits into HDF5 (resumable, shardable)."""
-    from . import dataset
+    from hjrno_ros.datasets import dataset
 
     config = dataset.load_config(args.experiment, args.config)
     overrides = (("grid", args.grid), ("n_train", args.n_train), ("n_test", args.n_test), ("seed", args.seed),
@@ -116,7 +118,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
 
 
 def cmd_merge(args: argparse.Namespace) -> int:
-    from . import dataset
+    from hjrno_ros.datasets import dataset
 
     outputs = dataset.merge(Path(args.out), [Path(s) for s in args.shards])
     print("wrote " + ", ".join(map(str, outputs)))
@@ -124,7 +126,8 @@ def cmd_merge(args: argparse.Namespace) -> int:
 
 
 def cmd_show(args: argparse.Namespace) -> int:
-    from . import dataset, plotting
+    from hjrno_ros.datasets import dataset
+    from hjrno_ros.studies import plotting
 
     split = dataset.load_split(args.dataset)
     out = Path(args.out) if args.out else Path(args.dataset).with_suffix(".png")
@@ -137,7 +140,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     """Train an operator on an experiment's dataset; writes safetensors + model card."""
     import torch
 
-    from .training import TrainConfig, train
+    from hjrno_ros.learning.training import TrainConfig, train
 
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -160,7 +163,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 def cmd_ensemble(args: argparse.Namespace) -> int:
     """Save several trained models as one whose output is their mean."""
-    from . import model_ensemble
+    from hjrno_ros.learning import model_ensemble
 
     command = "hjrno " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     weights = model_ensemble.combine(args.model, args.out, command, pessimism=args.pessimism)
@@ -170,7 +173,7 @@ def cmd_ensemble(args: argparse.Namespace) -> int:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from . import checkpoint, evaluation
+    from hjrno_ros.learning import checkpoint, evaluation
 
     if args.superres:
         data = args.data or checkpoint.folders_with_test_split(checkpoint.load_card(args.model.split(",")[0]))[0]
@@ -195,7 +198,8 @@ def _models(items: list[str] | None) -> dict[str, str]:
 
 def _data_folders(data: str | None, stem: str, unconverged: bool) -> list[str]:
     """``--data``, or else the card's test folders that can be halved (a one-room split is left out, with a note)."""
-    from . import checkpoint, held_out
+    from hjrno_ros.datasets import held_out
+    from hjrno_ros.learning import checkpoint
 
     if data:
         return data.split(",")
@@ -209,7 +213,7 @@ def _data_folders(data: str | None, stem: str, unconverged: bool) -> list[str]:
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     """Split-conformal ε for a model, written into its card (the node's default margin)."""
-    from .calibration import calibrate_model
+    from hjrno_ros.learning.calibration import calibrate_model
 
     folders = _data_folders(args.data, args.model, args.allow_unconverged)
     entry = calibrate_model(args.model, folders, args.alpha, args.beta, args.draws, args.seed, args.margin,
@@ -234,8 +238,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     """Closed-loop comparison of safety filters; writes closed_loop.{md,csv,json,png}."""
     import torch
 
-    from . import filter_study, plotting
-    from .closed_loop import EpisodeSettings
+    from hjrno_ros.studies import filter_study, plotting
+    from hjrno_ros.studies.closed_loop import EpisodeSettings
 
     torch.set_num_threads(args.threads)
     models = _models(args.model)
@@ -257,14 +261,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     """Live demo: brt_node + a simulated robot over ROS 2; exit 1 if the robot collided."""
-    from . import demo
+    from hjrno_ros.tools import demo
 
     return demo.run(Path(args.out), args.seconds, args.seed, args.model, use_filter=not args.no_filter,
                     gif=not args.no_gif)
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from . import benchmarks
+    from hjrno_ros.tools import benchmarks
 
     only = tuple(args.only.split(",")) if args.only else ()
     return benchmarks.run(args.what, Path(args.out), quick=args.quick, only=only, model=args.model)

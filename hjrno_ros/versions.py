@@ -5,7 +5,7 @@ from __future__ import annotations
 import platform
 from importlib import metadata
 
-from . import __version__
+from hjrno_ros import __version__
 
 _LIBRARIES = ("numpy", "scipy", "jax", "jaxlib", "hj-reachability", "torch", "h5py")
 

@@ -4,8 +4,9 @@ from pathlib import Path
 
 import pytest
 
-from hjrno_ros import checkpoint, dataset
-from hjrno_ros.training import TrainConfig, train
+from hjrno_ros.datasets import dataset
+from hjrno_ros.learning import checkpoint
+from hjrno_ros.learning.training import TrainConfig, train
 
 SMALL = {"width": 8, "modes": 4, "n_layers": 2}
 

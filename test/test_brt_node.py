@@ -39,9 +39,10 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E
 from std_msgs.msg import Float32MultiArray, String  # noqa: E402
 from std_srvs.srv import SetBool  # noqa: E402
 
-from hjrno_ros import checkpoint, geometry  # noqa: E402
-from hjrno_ros.brt_node import INFERENCE_NICE, BrtNode, refined_filter_settings  # noqa: E402
-from hjrno_ros.safety_filter import FilterSettings  # noqa: E402
+from hjrno_ros.core import geometry  # noqa: E402
+from hjrno_ros.core.safety_filter import FilterSettings  # noqa: E402
+from hjrno_ros.learning import checkpoint  # noqa: E402
+from hjrno_ros.ros.node import INFERENCE_NICE, BrtNode, refined_filter_settings  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DOMAIN = 1 + os.getpid() % 50  # Linux: ids <= 101 avoid the ephemeral port range
@@ -292,10 +293,11 @@ def test_inflation_radius_grows_obstacles_live(ros):
 
 def ground_truth_control(node: BrtNode, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(u*, ∇V) at ``state`` from a converged solve on a 24x24x7x12 grid of the same window (~7 s)."""
-    from hjrno_ros.dynamics import DynamicDubinsCar, car_optimal_control
-    from hjrno_ros.grids import car_grid
-    from hjrno_ros.solver import solve
-    from hjrno_ros.value_table import ValueTable
+    from hjrno_ros.core.dynamics import car_optimal_control
+    from hjrno_ros.core.grids import car_grid
+    from hjrno_ros.core.value_table import ValueTable
+    from hjrno_ros.truth.solver import solve
+    from hjrno_ros.truth.systems import DynamicDubinsCar
 
     vf = node._vf
     wx, wy = vf.window
@@ -509,7 +511,7 @@ def test_pose_topic_and_stamped_commands(ros, model_stem):
 
 def test_missing_model_exits_nonzero_with_one_line():
     env = {**os.environ, "ROS_DOMAIN_ID": str(DOMAIN)}
-    proc = subprocess.run([sys.executable, "-m", "hjrno_ros.brt_node", "--ros-args", "-p",
+    proc = subprocess.run([sys.executable, "-m", "hjrno_ros.ros.node", "--ros-args", "-p",
                            "model_path:=/nonexistent"], capture_output=True, text=True, timeout=60, env=env)
     lines = [line for line in (proc.stdout + proc.stderr).splitlines() if line.strip()]
     assert proc.returncode == 1
@@ -520,7 +522,7 @@ def test_bundled_models_resolve_by_name():
     """model_path may name a bundled model: the default loads with each member in its two frames and the ε
     calibrated that way, ``v5`` is the same weights with one frame per member and its own ε; an unknown
     name is one clear error."""
-    from hjrno_ros.brt_node import StartupError, resolve_model
+    from hjrno_ros.ros.node import StartupError, resolve_model
 
     stem = resolve_model("")
     assert stem == ROOT / "models" / "default" and resolve_model(str(stem)) == stem
@@ -540,8 +542,8 @@ def test_heading_across_pi_reads_the_stencil_not_its_clamped_edge():
     """A table made at θ = π − 0.05 holds headings π − 0.05 ± dθ/2 unwrapped; odometry then reports
     −π + 0.05 (the same heading turned 0.1 rad on): the lookup must use π + 0.05, inside the stencil,
     not −π + 0.05, which the table would clamp to its lower edge (a heading 0.3 rad off)."""
-    from hjrno_ros.brt_node import RobotState, table_state
-    from hjrno_ros.value_function import LearnedValueFunction
+    from hjrno_ros.learning.value_function import LearnedValueFunction
+    from hjrno_ros.ros.node import RobotState, table_state
 
     vf = LearnedValueFunction(ROOT / "models" / "default", device="cpu")
     center, theta = (0.0, 0.0), math.pi - 0.05
@@ -557,7 +559,7 @@ def test_heading_across_pi_reads_the_stencil_not_its_clamped_edge():
 def test_config_yaml_lists_every_parameter_with_its_default():
     import yaml
 
-    from hjrno_ros.brt_node import PARAMETERS
+    from hjrno_ros.ros.node import PARAMETERS
 
     params = yaml.safe_load((ROOT / "config" / "brt_node.yaml").read_text())["brt_node"]["ros__parameters"]
     assert params == {name: default for name, (default, _, _) in PARAMETERS.items()}

@@ -7,8 +7,8 @@ import sys
 import h5py
 import pytest
 
-from hjrno_ros.h5store import read_solution, write_solution
-from hjrno_ros.problems import disk
+from hjrno_ros.datasets.h5store import read_solution, write_solution
+from hjrno_ros.truth.problems import disk
 
 
 def hjrno(*args, cwd=None):

@@ -10,15 +10,18 @@ import numpy as np
 import pytest
 from conftest import copy_model
 
-from hjrno_ros import calibration, checkpoint, closed_loop, evaluation, held_out, problems
-from hjrno_ros.closed_loop import EpisodeSettings, World
-from hjrno_ros.dynamics import CarParams, car_f, car_optimal_control, car_worst_disturbance
-from hjrno_ros.geometry import Disk
-from hjrno_ros.operators.average import SymmetryAverage
-from hjrno_ros.safety_filter import FilterSettings, filter_batch, filter_command, minimal_change
-from hjrno_ros.solver import solve
-from hjrno_ros.stop_zone import StopZoneSettings, stop_zone_filter
-from hjrno_ros.value_table import ValueTable
+from hjrno_ros.core.dynamics import CarParams, car_f, car_optimal_control, car_worst_disturbance
+from hjrno_ros.core.geometry import Disk
+from hjrno_ros.core.safety_filter import FilterSettings, filter_batch, filter_command, minimal_change
+from hjrno_ros.core.stop_zone import StopZoneSettings, stop_zone_filter
+from hjrno_ros.core.value_table import ValueTable
+from hjrno_ros.datasets import held_out
+from hjrno_ros.learning import calibration, checkpoint, evaluation
+from hjrno_ros.learning.operators.average import SymmetryAverage
+from hjrno_ros.studies import closed_loop
+from hjrno_ros.studies.closed_loop import EpisodeSettings, World
+from hjrno_ros.truth import problems
+from hjrno_ros.truth.solver import solve
 
 HJRNO = [sys.executable, "-m", "hjrno_ros.cli"]
 PARAMS = CarParams()
@@ -184,7 +187,7 @@ def test_calibrate_records_symmetry_averaging_in_the_card(trained, tmp_path):
 def test_calibrate_records_member_frames_in_the_card(trained, tmp_path):
     """--member-frames: each ensemble member predicts in its listed D4 frames; calibrated that way and
     recorded with ε, so later loads predict as ε was measured; 'none' clears; a malformed list is refused."""
-    from hjrno_ros import model_ensemble
+    from hjrno_ros.learning import model_ensemble
 
     _, stem = trained
     ens = tmp_path / "ens"
@@ -221,8 +224,8 @@ def test_held_out_halves_and_unconverged_worlds(ci_data, trained, tmp_path):
 
     _, stem = trained
 
-    from hjrno_ros import held_out
     from hjrno_ros.cli import _data_folders
+    from hjrno_ros.datasets import held_out
 
     full = tmp_path / "full"
     shutil.copytree(ci_data, full)
@@ -263,7 +266,7 @@ def test_worlds_without_a_safe_start_are_skipped_with_a_note(ci_data, tmp_path):
     could win: the study leaves it out and says so; with no usable world at all it refuses."""
     import h5py
 
-    from hjrno_ros import filter_study
+    from hjrno_ros.studies import filter_study
 
     folder = tmp_path / "tight"
     shutil.copytree(ci_data, folder)
@@ -286,7 +289,7 @@ def test_worlds_without_a_safe_start_are_skipped_with_a_note(ci_data, tmp_path):
 def test_simulate_adds_refined_filters(ci_data, trained, tmp_path):
     """``refine``: per model its table after the solver warm-started from it (brt_node's refine_horizon):
     never above the prediction or l, changed by the solve, and filtered beside the model in every mode."""
-    from hjrno_ros import filter_study
+    from hjrno_ros.studies import filter_study
 
     _, stem = trained
     local = copy_model(stem, tmp_path)
@@ -310,7 +313,7 @@ def test_simulate_adds_refined_filters(ci_data, trained, tmp_path):
 def test_calibrate_refine_writes_a_margin_for_refined_tables(trained, tmp_path):
     """``calibrate --refine T`` calibrates the tables the solver refined for T simulated s: it writes
     refine_epsilon (≥ δ) for stages ≥ T and leaves the operator's ε as it was; simulate --refine uses it."""
-    from hjrno_ros import filter_study
+    from hjrno_ros.studies import filter_study
 
     _, stem = trained
     local = copy_model(stem, tmp_path)

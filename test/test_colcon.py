@@ -32,15 +32,15 @@ PY = f"python{sys.version_info.major}.{sys.version_info.minor}"
 
 def model_for_startup(tmp: Path) -> Path:
     """The bundled model, else an untrained tiny FNO (start-up only needs a loadable car model)."""
-    from hjrno_ros import checkpoint
+    from hjrno_ros.learning import checkpoint
 
     bundled = ROOT / "models" / "default"
     if checkpoint.paths(bundled)[1].is_file():
         return bundled
-    from hjrno_ros.dynamics import CarParams
-    from hjrno_ros.grids import car_grid
-    from hjrno_ros.operators import build_model
-    from hjrno_ros.slices import InputSpec
+    from hjrno_ros.core.dynamics import CarParams
+    from hjrno_ros.core.grids import car_grid
+    from hjrno_ros.learning.operators import build_model
+    from hjrno_ros.learning.slices import InputSpec
 
     model = build_model("fno", in_channels=4, width=8, modes=4, n_layers=2)
     card = {"kind": "fno", "config": model.config, "inputs": InputSpec("car", 5.0).as_dict(),

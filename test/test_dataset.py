@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
-from hjrno_ros import dataset
+from hjrno_ros.datasets import dataset
 
 CI = dataset.load_config("ci")
 

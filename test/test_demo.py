@@ -6,8 +6,8 @@ import sys
 
 import numpy as np
 
-from hjrno_ros import demo
-from hjrno_ros.geometry import union_sdf
+from hjrno_ros.core.geometry import union_sdf
+from hjrno_ros.tools import demo
 
 HJRNO = [sys.executable, "-m", "hjrno_ros.cli"]
 

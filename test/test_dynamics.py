@@ -5,7 +5,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hjrno_ros import dynamics as dyn
+from hjrno_ros.core import dynamics as dyn
+from hjrno_ros.truth import systems
 
 RNG = np.random.default_rng(7)
 
@@ -16,7 +17,7 @@ def car_states(n):
 
 def test_car_numpy_matches_hj_dynamics():
     p = dyn.CarParams(a_max=0.7, kappa_max=1.3, d_max=0.2)
-    system = dyn.DynamicDubinsCar(p)
+    system = systems.DynamicDubinsCar(p)
     for s in car_states(20):
         u, d = RNG.uniform(-1, 1, 2), RNG.uniform(-0.1, 0.1, 2)
         s[2] = 0.5  # away from the speed limits, where f is affine
@@ -41,7 +42,7 @@ def test_car_optimal_control_maximises_and_disturbance_minimises():
 
 def test_car_hj_optimal_matches_numpy():
     p = dyn.CarParams()
-    system = dyn.DynamicDubinsCar(p)
+    system = systems.DynamicDubinsCar(p)
     for s, g in zip(car_states(10), RNG.normal(size=(10, 4)), strict=True):
         u, d = system.optimal_control_and_disturbance(jnp.array(s), 0.0, jnp.array(g))
         np.testing.assert_allclose(np.asarray(u), dyn.car_optimal_control(p, s, g), rtol=1e-6)
@@ -65,7 +66,7 @@ def test_speed_stays_within_limits():
 
 def test_air3d_matches_hj_builtin():
     p = dyn.Air3DParams(evader_speed=4.0, pursuer_speed=3.0, evader_max_turn_rate=1.2, pursuer_max_turn_rate=0.8)
-    ours = dyn.Air3D(p)
+    ours = systems.Air3D(p)
     ref = hj.systems.Air3d(4.0, 3.0, 1.2, 0.8)
     for _ in range(30):
         s = jnp.array(RNG.uniform(-5, 5, 3))
@@ -80,9 +81,9 @@ def test_air3d_matches_hj_builtin():
 
 
 def test_equal_parameters_share_the_jit_cache_key():
-    assert dyn.DynamicDubinsCar(dyn.CarParams()) == dyn.DynamicDubinsCar(dyn.CarParams())
-    assert hash(dyn.DynamicDubinsCar()) == hash(dyn.DynamicDubinsCar(dyn.CarParams()))
-    assert dyn.DynamicDubinsCar(dyn.CarParams(a_max=2.0)) != dyn.DynamicDubinsCar()
+    assert systems.DynamicDubinsCar(dyn.CarParams()) == systems.DynamicDubinsCar(dyn.CarParams())
+    assert hash(systems.DynamicDubinsCar()) == hash(systems.DynamicDubinsCar(dyn.CarParams()))
+    assert systems.DynamicDubinsCar(dyn.CarParams(a_max=2.0)) != systems.DynamicDubinsCar()
 
 
 @pytest.mark.parametrize("kwargs, message", [

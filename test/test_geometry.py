@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from hjrno_ros import geometry as geo
-from hjrno_ros.grids import air3d_grid, car_grid
+from hjrno_ros.core import geometry as geo
+from hjrno_ros.core.grids import air3d_grid, car_grid
 
 RNG = np.random.default_rng(3)
 POINTS = RNG.uniform(-4, 4, (2000, 2))
@@ -127,8 +127,8 @@ def test_grid_target_minus_half_cell_diagonal_is_conservative():
     """l sampled at grid nodes and interpolated overestimates the exact clearance near a clutter box
     smaller than a cell (room indoor/3000313 on the 32 x 32 datasets' grid: V∞ came out > 0 inside it);
     since l is 1-Lipschitz, l − h/√2 interpolates below the exact clearance everywhere."""
-    from hjrno_ros.scenarios import make_scenario
-    from hjrno_ros.value_table import ValueTable
+    from hjrno_ros.core.value_table import ValueTable
+    from hjrno_ros.truth.scenarios import make_scenario
 
     room = make_scenario("indoor", 3000313)
     grid = room.grid((32, 32, 3, 4))

@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hjrno_ros import map_refinement as mr
-from hjrno_ros.dynamics import DynamicDubinsCar
-from hjrno_ros.value_function import LearnedValueFunction
+from hjrno_ros.learning.value_function import LearnedValueFunction
+from hjrno_ros.truth import refinement as mr
+from hjrno_ros.truth.systems import DynamicDubinsCar
 
 ROOT = Path(__file__).resolve().parents[1]
 MODEL = ROOT / "models" / "default"
@@ -146,7 +146,7 @@ def test_a_failing_child_reports_one_line(tmp_path, one_window):
     finally:
         r.stop()
     (tmp_path / mr.REQUEST).write_bytes(b"\x00" * 40)  # a truncated request
-    out = subprocess.run([sys.executable, "-m", "hjrno_ros.map_refinement", str(tmp_path)], capture_output=True,
+    out = subprocess.run([sys.executable, "-m", "hjrno_ros.truth.refinement", str(tmp_path)], capture_output=True,
                          text=True)
     assert out.returncode == 1 and "not a refinement file" in out.stderr and len(out.stderr.splitlines()) == 1
     assert not (tmp_path / mr.RESULT).exists()

@@ -7,9 +7,9 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from hjrno_ros.operators import MODELS, build_model, count_parameters
-from hjrno_ros.operators.average import SymmetryAverage
-from hjrno_ros.slices import InputSpec, symmetry
+from hjrno_ros.learning.operators import MODELS, build_model, count_parameters
+from hjrno_ros.learning.operators.average import SymmetryAverage
+from hjrno_ros.learning.slices import InputSpec, symmetry
 
 KINDS = sorted(MODELS)
 SMALL = {  # small configs keep the tests fast; defaults are exercised where it matters

@@ -10,10 +10,9 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from hjrno_ros.dynamics import Air3D, DynamicDubinsCar
-from hjrno_ros.geometry import union_sdf
-from hjrno_ros.grids import air3d_grid, car_grid
-from hjrno_ros.scenarios import (
+from hjrno_ros.core.geometry import union_sdf
+from hjrno_ros.core.grids import air3d_grid, car_grid
+from hjrno_ros.truth.scenarios import (
     DOMAIN_HI,
     DOMAIN_LO,
     FAMILIES,
@@ -24,7 +23,8 @@ from hjrno_ros.scenarios import (
     parametric_train_grid,
     random_smooth_shape,
 )
-from hjrno_ros.solver import solve
+from hjrno_ros.truth.solver import solve
+from hjrno_ros.truth.systems import Air3D, DynamicDubinsCar
 
 CAR_FAMILIES = [f for f, spec in FAMILIES.items() if spec.kind == "car"]
 SEEDS = (0, 1, 7)

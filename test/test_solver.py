@@ -3,12 +3,14 @@
 import numpy as np
 import pytest
 
-from hjrno_ros import problems, simulation
-from hjrno_ros.dynamics import Air3D, Air3DParams, CarParams, DynamicDubinsCar
-from hjrno_ros.geometry import Disk
-from hjrno_ros.grids import car_grid
-from hjrno_ros.solver import _step, solve
-from hjrno_ros.value_table import ValueTable
+from hjrno_ros.core.dynamics import Air3DParams, CarParams
+from hjrno_ros.core.geometry import Disk
+from hjrno_ros.core.grids import car_grid
+from hjrno_ros.core.value_table import ValueTable
+from hjrno_ros.studies import simulation
+from hjrno_ros.truth import problems
+from hjrno_ros.truth.solver import _step, solve
+from hjrno_ros.truth.systems import Air3D, DynamicDubinsCar, hj_grid
 
 COARSE, FINE = (32, 32, 9, 16), (40, 40, 12, 20)
 
@@ -100,7 +102,7 @@ def test_air3d_matches_hj_builtin_system():
                           max_horizon=10.0)
     assert report.converged
     settings = hj.SolverSettings.with_accuracy("high", hamiltonian_postprocessor=hj.solver.backwards_reachable_tube)
-    reference = np.asarray(hj.step(settings, hj.systems.Air3d(), problem.grid.to_hj(), 0.0, problem.target,
+    reference = np.asarray(hj.step(settings, hj.systems.Air3d(), hj_grid(problem.grid), 0.0, problem.target,
                                    -report.horizon, progress_bar=False))
     near = np.abs(reference) < 1.0
     assert np.abs(value - reference)[near].max() < 1e-3
@@ -159,8 +161,8 @@ def test_step_matches_hj_reachability_step(accuracy):
     grid, params = car_grid((20, 20, 5, 8)), CarParams(a_max=0.7, kappa_max=1.3)
     values = Disk((1, 0), 1.0).sdf(grid.states()[..., :2]).astype(np.float32)
     settings = hj.SolverSettings.with_accuracy(accuracy, hamiltonian_postprocessor=hj.solver.backwards_reachable_tube)
-    theirs = hj.step(settings, DynamicDubinsCar(params), grid.to_hj(), 0.0, values, -0.5, progress_bar=False)
-    ours = _step(DynamicDubinsCar, CarParams, accuracy, dataclasses.astuple(params), grid.to_hj(), 0.0, values, -0.5)
+    theirs = hj.step(settings, DynamicDubinsCar(params), hj_grid(grid), 0.0, values, -0.5, progress_bar=False)
+    ours = _step(DynamicDubinsCar, CarParams, accuracy, dataclasses.astuple(params), hj_grid(grid), 0.0, values, -0.5)
     assert np.abs(np.asarray(theirs) - values).max() > 0.01  # the step did something
     np.testing.assert_allclose(np.asarray(ours), np.asarray(theirs), atol=1e-6)
 

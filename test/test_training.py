@@ -10,12 +10,12 @@ import torch
 from conftest import SMALL, copy_model
 from scipy.interpolate import RegularGridInterpolator
 
-from hjrno_ros import checkpoint, dataset, evaluation
-from hjrno_ros.dynamics import DynamicDubinsCar
-from hjrno_ros.geometry import Polygon
-from hjrno_ros.grids import car_grid
-from hjrno_ros.operators.average import SymmetryAverage
-from hjrno_ros.slices import (
+from hjrno_ros.core.geometry import Polygon
+from hjrno_ros.core.grids import car_grid
+from hjrno_ros.datasets import dataset
+from hjrno_ros.learning import checkpoint, evaluation
+from hjrno_ros.learning.operators.average import SymmetryAverage
+from hjrno_ros.learning.slices import (
     SliceSet,
     SliceUnion,
     angle_difference_l2,
@@ -24,9 +24,10 @@ from hjrno_ros.slices import (
     spec_for,
     symmetry,
 )
-from hjrno_ros.solver import solve
-from hjrno_ros.training import TrainConfig, TrainingDiverged, train
-from hjrno_ros.value_function import LearnedValueFunction
+from hjrno_ros.learning.training import TrainConfig, TrainingDiverged, train
+from hjrno_ros.learning.value_function import LearnedValueFunction
+from hjrno_ros.truth.solver import solve
+from hjrno_ros.truth.systems import DynamicDubinsCar
 
 
 def test_inputs_follow_the_slice_convention(ci_data):
@@ -292,7 +293,7 @@ def test_learned_value_function_gives_value_and_gradient(trained):
 def test_inflation_at_the_output_runs_the_model_on_l(trained, ci_data):
     """V∞[l − r] = V∞[l] − r (test_dataset checks it on real solves): with ``inflation_at="output"`` the
     model reads l and r comes off its output; by default ("input", as brt_node) it reads l − r."""
-    from hjrno_ros import held_out
+    from hjrno_ros.datasets import held_out
 
     _, out = trained
     r = np.float32(0.23)
@@ -330,7 +331,7 @@ def test_learned_value_function_follows_the_cards_symmetry_average(trained, tmp_
 def test_parametric_diagonal_figure(tmp_path):
     import dataclasses
 
-    from hjrno_ros.operators import build_model
+    from hjrno_ros.learning.operators import build_model
 
     config = dataclasses.replace(dataset.load_config("ci"), name="ci_parametric", family="parametric",
                                  parametric_grid=2, n_train=4, n_test=3)
@@ -349,7 +350,7 @@ def test_parametric_diagonal_figure(tmp_path):
 def test_ensemble_predicts_the_members_mean_and_refuses_unlike_members(trained, ci_data, tmp_path):
     """``hjrno ensemble``: one checkpoint whose output is the mean of its members' (with ``--pessimism`` k,
     mean − k·std), usable like any model."""
-    from hjrno_ros import model_ensemble
+    from hjrno_ros.learning import model_ensemble
 
     _, fno = trained
     cnn = tmp_path / "cnn"

@@ -1,0 +1,152 @@
+"""Least-restrictive safety filter for the dynamic Dubins car (no ROS).
+
+Given V and ∇V at the state (x, y, v, θ), three modes:
+
+- ``switch``: pass the nominal command while V > ε; at V ≤ ε replace it by the optimal safe
+  control u* = argmax_u ∇V·f (DESIGN.md §5), mapped to a velocity command.
+- ``blend``: mix nominal and safe commands linearly over V ∈ (ε, ε + blend_width] instead of
+  switching, which reduces chattering.
+- ``qp``: the smallest change of the nominal control u = (a, κ), in units of the limits, that
+  keeps dV/dt ≥ −γ (V − ε) under the worst-case disturbance (a control-barrier condition on the
+  HJ value function).  ∇V·f is affine in u, so this one-constraint QP over the control box has a
+  closed-form solution; where no control satisfies it, u*.  Far from the boundary it passes
+  the command unchanged, near it it bends the command only as much as needed.
+
+Commands are twists (linear m/s, angular rad/s); the base turns them into controls as
+:func:`twist_to_control` says.  Anything non-finite fails closed: a stop command.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from hjrno_ros.core.dynamics import CarParams, car_optimal_control, feasible_acceleration
+
+MODES = ("switch", "blend", "qp")
+
+
+@dataclasses.dataclass(frozen=True)
+class FilterSettings:
+    epsilon: float = 0.1  # m: intervene when V ≤ ε
+    mode: str = "switch"
+    blend_width: float = 0.2  # m: "blend" ramps from safe (V ≤ ε) to nominal (V ≥ ε + width)
+    dt: float = 0.05  # s: control period mapping accelerations to speed commands
+    decay_rate: float = 4.0  # 1/s: "qp" keeps dV/dt ≥ −decay_rate (V − ε)
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"filter mode must be one of {MODES}, got {self.mode!r}")
+        if not (math.isfinite(self.epsilon) and self.epsilon >= 0):
+            raise ValueError(f"epsilon must be finite and >= 0, got {self.epsilon}")
+        if not (self.blend_width > 0 and self.dt > 0 and self.decay_rate > 0):
+            raise ValueError(f"blend_width, dt and decay_rate must be > 0, got {self.blend_width}, {self.dt}, "
+                             f"{self.decay_rate}")
+
+
+@dataclasses.dataclass(frozen=True)
+class Decision:
+    linear: float  # m/s
+    angular: float  # rad/s
+    intervened: bool
+    value: float  # V at the state, m
+    reason: str
+
+
+def twist_to_control(params: CarParams, states: np.ndarray, twist: np.ndarray, dt: float) -> np.ndarray:
+    """What a base does with twists ``(n, 2)``: a = (v_cmd − v)/dt within ±a_max, κ = ω / v within ±κ_max."""
+    v = states[..., 2]
+    accel = np.clip((twist[..., 0] - v) / dt, -params.a_max, params.a_max)
+    curvature = np.clip(twist[..., 1] / np.maximum(v, 1e-3), -params.kappa_max, params.kappa_max)
+    return np.stack([accel, curvature], -1)
+
+
+def control_to_twist(params: CarParams, states: np.ndarray, control: np.ndarray, dt: float) -> np.ndarray:
+    """The twists ``(n, 2)`` that make such a base apply ``control`` (a, κ) over one period ``dt``."""
+    v = states[..., 2]
+    return np.stack([np.clip(v + control[..., 0] * dt, params.v_min, params.v_max), v * control[..., 1]], -1)
+
+
+def safe_twist(params: CarParams, state: np.ndarray, grad: np.ndarray, dt: float) -> np.ndarray:
+    """The optimal safe control at ``state`` (``(4,)`` or ``(n, 4)``) as (linear, angular) commands."""
+    state = np.asarray(state, float)
+    return control_to_twist(params, state, car_optimal_control(params, state, np.asarray(grad, float)), dt)
+
+
+def nominal_weight(settings: FilterSettings, value: np.ndarray) -> np.ndarray:
+    """Share of the nominal command: 1 while V > ε (+ blend width), 0 at V ≤ ε, linear in between."""
+    value = np.asarray(value, float)
+    if settings.mode == "switch":
+        return (value > settings.epsilon).astype(float)
+    return np.clip((value - settings.epsilon) / settings.blend_width, 0.0, 1.0)
+
+
+def minimal_change(params: CarParams, settings: FilterSettings, states: np.ndarray, values: np.ndarray,
+                   grads: np.ndarray, nominal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The ``qp`` mode on controls: (u ``(n, 2)``, changed ``(n,)``) for nominal controls ``(n, 2)``.
+
+    In scaled units z = u / limit the constraint is g·z ≥ b; z(λ) = clip(z_nom + λ g) is the
+    projection path, and g·z(λ) is piecewise linear in λ with a kink where each axis saturates.
+    """
+    v = states[:, 2]
+    half = np.array([params.a_max, params.kappa_max])
+    g = np.column_stack([grads[:, 2], grads[:, 3] * v]) * half  # ∂(∇V·f)/∂z
+    at_limit = feasible_acceleration(params, v, np.sign(g[:, 0]), np) == 0  # speed limit: a cannot help
+    g[:, 0] = np.where(at_limit, 0.0, g[:, 0])
+    drift = grads[:, 0] * v * np.cos(states[:, 3]) + grads[:, 1] * v * np.sin(states[:, 3])
+    drift -= params.d_max * np.linalg.norm(grads[:, :2], axis=-1)  # worst-case disturbance
+    b = -settings.decay_rate * (values - settings.epsilon) - drift
+    z0 = np.clip(nominal / half, -1.0, 1.0)
+    safe_g = np.where(g == 0, 1.0, g)
+    kinks = np.sort(np.where(g == 0, 0.0, np.maximum((np.sign(g) - z0) / safe_g, 0.0)), axis=1)
+    z_at = [np.clip(z0 + lam[:, None] * g, -1.0, 1.0) for lam in (np.zeros(len(g)), kinks[:, 0], kinks[:, 1])]
+    h0, h1, h2 = ((g * z).sum(-1) for z in z_at)
+    lam = np.where(h1 >= b, kinks[:, 0] * (b - h0) / np.where(h1 > h0, h1 - h0, 1.0),
+                   kinks[:, 0] + (kinks[:, 1] - kinks[:, 0]) * (b - h1) / np.where(h2 > h1, h2 - h1, 1.0))
+    lam = np.where(h2 < b, kinks[:, 1], np.clip(lam, 0.0, kinks[:, 1]))
+    changed = h0 < b
+    z = np.where(changed[:, None], np.clip(z0 + lam[:, None] * g, -1.0, 1.0), z0)
+    return z * half, changed
+
+
+def stop(value: float, reason: str) -> Decision:
+    """Fail closed: zero velocity."""
+    return Decision(0.0, 0.0, True, value, reason)
+
+
+def filter_command(params: CarParams, settings: FilterSettings, state: np.ndarray, value: float, grad: np.ndarray,
+                   linear: float, angular: float) -> Decision:
+    """The command to send, given the nominal (linear, angular) and V, ∇V at ``state`` (x, y, v, θ)."""
+    if not (np.all(np.isfinite(state)) and math.isfinite(value) and np.all(np.isfinite(grad))):
+        return stop(float(value), "non-finite state or value")
+    if not (math.isfinite(linear) and math.isfinite(angular)):
+        return stop(float(value), "non-finite nominal command")
+    out, intervened = filter_batch(params, settings, np.asarray(state, float)[None], np.array([value], float),
+                                   np.asarray(grad, float)[None], np.array([[linear, angular]], float))
+    if not intervened[0]:
+        return Decision(float(linear), float(angular), False, float(value), "pass")
+    reason = "qp" if settings.mode == "qp" else "safe control" if nominal_weight(settings, value) == 0 else "blend"
+    return Decision(float(out[0, 0]), float(out[0, 1]), True, float(value), reason)
+
+
+def filter_batch(params: CarParams, settings: FilterSettings, states: np.ndarray, values: np.ndarray,
+                 grads: np.ndarray, nominal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`filter_command` for ``n`` robots at once: commands ``(n, 2)`` and intervened ``(n,)``.
+
+    Non-finite inputs fail closed (zero command), as in the scalar version."""
+    bad = ~(np.isfinite(states).all(-1) & np.isfinite(values) & np.isfinite(grads).all(-1)
+            & np.isfinite(nominal).all(-1))
+    states, values, grads, nominal = (np.where(bad[(...,) + (None,) * (a.ndim - 1)], 0.0, a)
+                                      for a in (states, values, grads, nominal))
+    if settings.mode == "qp":
+        u, changed = minimal_change(params, settings, states, values, grads,
+                                    twist_to_control(params, states, nominal, settings.dt))
+        out = np.where(changed[:, None], control_to_twist(params, states, u, settings.dt), nominal)
+    else:
+        w = nominal_weight(settings, values)
+        out = w[:, None] * nominal + (1 - w[:, None]) * safe_twist(params, states, grads, settings.dt)
+        changed = w < 1.0
+    out[bad] = 0.0
+    return out, changed | bad

@@ -1,0 +1,198 @@
+"""Operator inputs and targets: 2D x-y slices of (V0, V∞) with constant state/parameter channels.
+
+A slice fixes every state variable but (x, y): the car's (v, θ), Air3D's ψ.  Input channels are
+the V0 slice, then constants: normalised v, cos θ, sin θ (car) or cos ψ, sin ψ (Air3D), then the
+normalised varying parameters (a_max, κ_max for the parametric family).  Values are divided by
+``value_scale`` (m).  :class:`InputSpec` is stored in the model card, so the node builds exactly
+the inputs the model was trained on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import torch
+
+from hjrno_ros.core.grids import wrap_angle
+
+
+@dataclasses.dataclass(frozen=True)
+class InputSpec:
+    kind: str  # "car" or "air3d"
+    value_scale: float  # m: V0 and V are divided by this
+    v_range: tuple[float, float] = (0.0, 1.0)  # car only
+    param_ranges: dict = dataclasses.field(default_factory=dict)  # name -> (lo, hi), e.g. a_max, kappa_max
+
+    @property
+    def channels(self) -> list[str]:
+        angle = ["cos_theta", "sin_theta"] if self.kind == "car" else ["cos_psi", "sin_psi"]
+        return ["v0"] + (["v"] if self.kind == "car" else []) + angle + list(self.param_ranges)
+
+    @property
+    def in_channels(self) -> int:
+        return len(self.channels)
+
+    def as_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["v_range"] = list(self.v_range)
+        d["param_ranges"] = {k: list(v) for k, v in self.param_ranges.items()}
+        d["channels"] = self.channels
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> InputSpec:
+        return cls(d["kind"], float(d["value_scale"]), tuple(d.get("v_range", (0.0, 1.0))),
+                   {k: tuple(v) for k, v in d.get("param_ranges", {}).items()})
+
+    def inputs(self, v0: np.ndarray, v: np.ndarray, angle: np.ndarray, params: np.ndarray | None = None
+               ) -> torch.Tensor:
+        """(B, C, Nx, Ny) float32 from V0 slices (B, Nx, Ny) in metres, speeds v (B,) (ignored for
+        Air3D), angles (B,) in rad and parameters (B, P) in the order of ``param_ranges``."""
+        v0 = np.asarray(v0, np.float32)
+        b, nx, ny = v0.shape
+        consts = []
+        if self.kind == "car":
+            lo, hi = self.v_range
+            consts.append(2.0 * (np.asarray(v, np.float32) - lo) / (hi - lo) - 1.0)
+        consts += [np.cos(angle), np.sin(angle)]
+        for i, (lo, hi) in enumerate(self.param_ranges.values()):
+            consts.append(2.0 * (np.asarray(params)[:, i] - lo) / (hi - lo) - 1.0)
+        c = np.stack(consts, 1).astype(np.float32)  # (B, K)
+        x = np.empty((b, 1 + c.shape[1], nx, ny), np.float32)
+        x[:, 0] = v0 / self.value_scale
+        x[:, 1:] = c[:, :, None, None]
+        return torch.from_numpy(x)
+
+
+def spec_for(split) -> InputSpec:
+    """The input spec of a loaded dataset split (family decides the constant channels)."""
+    grid, family = split.grid, split.config.family
+    scale = 0.5 * max(grid.hi[0] - grid.lo[0], grid.hi[1] - grid.lo[1])
+    if family == "air3d":
+        return InputSpec("air3d", scale)
+    params = {"a_max": (0.5, 1.5), "kappa_max": (0.5, 1.5)} if family == "parametric" else {}
+    return InputSpec("car", scale, (grid.lo[2], grid.hi[2]), params)
+
+
+def symmetry(images: np.ndarray, theta: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Element ``k`` (0..7) of the square's symmetry group D4 applied per item to x-y slices
+    (B, Nx, Ny) and headings θ (B,) in rad: first, if k ≥ 4, the reflection y → −y (θ → −θ), then
+    k mod 4 quarter turns (x, y) → (−y, x) about the window centre (θ → θ + π/2 each).
+
+    The car's dynamics commute with these maps (the disturbance is a ball, the curvature bounds
+    are symmetric), so a transformed (V0, V∞) slice pair is another exact sample of the same
+    family: an 8-fold larger training set at no solving cost.  Needs a square window.
+    """
+    out = np.empty_like(images)
+    for b, kb in enumerate(np.asarray(k)):
+        image = images[b, :, ::-1] if kb >= 4 else images[b]
+        out[b] = np.rot90(image, kb % 4)
+    turned = np.where(np.asarray(k) >= 4, -theta, theta) + (np.asarray(k) % 4) * (np.pi / 2)
+    return out, wrap_angle(turned)
+
+
+class SliceSet:
+    """All (sample, slice) pairs of a split, batched on demand as tensors (x, y)."""
+
+    def __init__(self, split, spec: InputSpec):
+        self.split, self.spec = split, spec
+        self.angle_axis = 3 if spec.kind == "car" else 2
+        self.slice_shape = split.grid.shape[2:]
+        self.n_slices = int(np.prod(self.slice_shape))
+        self.params = np.array([[s.params[k] for k in spec.param_ranges] for s in split.scenarios], np.float32)
+        self.angles = split.grid.axis(self.angle_axis)
+        self.speeds = split.grid.axis(2) if spec.kind == "car" else np.zeros(1)
+
+    def __len__(self) -> int:
+        return len(self.split.target) * self.n_slices
+
+    def locate(self, index: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+        sample, rest = np.divmod(index, self.n_slices)
+        return sample, np.unravel_index(rest, self.slice_shape)
+
+    def angle_neighbour(self, index: np.ndarray) -> np.ndarray:
+        """The slice of the same sample and speed at the next grid angle (θ or ψ, periodic)."""
+        index = np.asarray(index)
+        n_angle = self.slice_shape[-1]
+        k = index % n_angle
+        return index - k + (k + 1) % n_angle
+
+    def check_symmetric(self) -> None:
+        """Raise unless :func:`symmetry` maps this split's slices onto exact samples."""
+        lo, hi, shape = self.split.grid.lo, self.split.grid.hi, self.split.grid.shape
+        if self.spec.kind != "car":
+            raise ValueError("symmetry augmentation is for the car (Air3D's relative frame is not symmetric)")
+        if shape[0] != shape[1] or not np.isclose(hi[0] - lo[0], hi[1] - lo[1]):
+            raise ValueError(f"symmetry augmentation needs a square x-y window, got {shape[:2]} nodes over "
+                             f"{hi[0] - lo[0]:g} m x {hi[1] - lo[1]:g} m")
+
+    def batch(self, index: np.ndarray, sym: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Inputs and targets of slices ``index``; ``sym`` (one 0..7 per item): apply :func:`symmetry`."""
+        sample, sl = self.locate(np.asarray(index))
+        v0 = self.split.target[(sample, slice(None), slice(None), *sl)]
+        y = self.split.value[(sample, slice(None), slice(None), *sl)]
+        v = self.speeds[sl[0]] if self.spec.kind == "car" else np.zeros(len(sample))
+        angle = self.angles[sl[-1]]
+        if sym is not None:
+            v0, _ = symmetry(np.asarray(v0, np.float32), angle, sym)
+            y, angle = symmetry(np.asarray(y, np.float32), angle, sym)
+        params = self.params[sample] if self.spec.param_ranges else None
+        x = self.spec.inputs(v0, v, angle, params)
+        return x, torch.from_numpy(np.asarray(y, np.float32) / self.spec.value_scale)[:, None]
+
+
+class SliceUnion:
+    """Several slice sets (e.g. datasets of different families on one grid) as one."""
+
+    def __init__(self, parts: list[SliceSet]):
+        if not parts:
+            raise ValueError("need at least one dataset")
+        shapes = {p.split.grid.shape for p in parts}
+        if len(shapes) != 1:
+            raise ValueError(f"datasets to combine must share one grid, got {sorted(shapes)}")
+        self.parts = parts
+        self.offsets = np.cumsum([0] + [len(p) for p in parts])
+
+    def __len__(self) -> int:
+        return int(self.offsets[-1])
+
+    def angle_neighbour(self, index: np.ndarray) -> np.ndarray:
+        """:meth:`SliceSet.angle_neighbour` of each slice, within its own dataset: the parts share one
+        grid, so every offset is a whole number of angle cycles and one part's rule serves all."""
+        return self.parts[0].angle_neighbour(index)
+
+    def batch(self, index: np.ndarray, sym: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        index = np.asarray(index)
+        part = np.searchsorted(self.offsets, index, side="right") - 1
+        xs, ys, order = [], [], []
+        for k in np.unique(part):
+            sel = np.flatnonzero(part == k)
+            x, y = self.parts[k].batch(index[sel] - self.offsets[k], None if sym is None else np.asarray(sym)[sel])
+            xs.append(x)
+            ys.append(y)
+            order.append(sel)
+        inverse = np.argsort(np.concatenate(order))
+        return torch.cat(xs)[inverse], torch.cat(ys)[inverse]
+
+
+def relative_l2(pred: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
+    """Mean over the batch of ‖pred − target‖₂ / ‖target‖₂ per item; with ``weight`` (same shape),
+    the squared error of each point counts ``weight`` times."""
+    dims = tuple(range(1, pred.ndim))
+    err = (pred - target) ** 2 if weight is None else weight * (pred - target) ** 2
+    return (torch.sqrt(err.sum(dims)) / torch.sqrt((target**2).sum(dims)).clamp_min(1e-8)).mean()
+
+
+def angle_difference_l2(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Relative L2 of the change between paired slices: the batch's first half holds slices, its
+    second half the same slices at the next grid angle (``angle_neighbour``).  The sign of V's
+    change with θ picks the safe control's turn, and plain relative L2 on V barely sees it."""
+    half = len(pred) // 2
+    return relative_l2(pred[half:] - pred[:half], target[half:] - target[:half])
+
+
+def level_set_weight(target: torch.Tensor, strength: float, width: float) -> torch.Tensor:
+    """1 + strength · exp(−(target / width)²): extra weight near the zero level set of V∞, where the
+    filter acts (``width`` in the target's units)."""
+    return 1.0 + strength * torch.exp(-((target / width) ** 2))

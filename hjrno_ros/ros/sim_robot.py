@@ -1,0 +1,161 @@
+"""A simulated robot over real ROS 2 topics, for the demo.
+
+It latches the map (reliable + transient local), publishes odometry in the map frame at
+``odom_rate``, sends a careless goal-seeking TwistStamped command stream at ``cmd_rate`` (it
+ignores obstacles: brt_node must keep it safe), and integrates the dynamic Dubins car with the
+*filtered* command and a random disturbance ‖d‖ ≤ d_max.  A filtered command older than
+``cmd_timeout`` counts as zero (brake), as a real base would.  It records the trajectory,
+interventions, command latency and value-grid snapshots for :mod:`hjrno_ros.tools.demo`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from collections.abc import Callable
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import TwistStamped
+from nav_msgs.msg import OccupancyGrid, Odometry
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from std_msgs.msg import String
+
+from hjrno_ros.core import safety_filter
+from hjrno_ros.core.dynamics import CarParams
+from hjrno_ros.core.geometry import union_sdf
+from hjrno_ros.ros.node import LATCHED, occupancy_array, occupancy_message, odometry_message
+from hjrno_ros.studies import closed_loop
+from hjrno_ros.studies.closed_loop import EpisodeSettings
+from hjrno_ros.studies.simulation import ball
+
+
+@dataclasses.dataclass
+class Log:
+    """What the demo reports: per physics step (t, x, y, v, θ, intervened) and the rest."""
+
+    states: list = dataclasses.field(default_factory=list)
+    latency_s: list = dataclasses.field(default_factory=list)
+    grids: list = dataclasses.field(default_factory=list)  # (t, origin, resolution, unsafe mask [ix, iy])
+    goals: list = dataclasses.field(default_factory=list)  # (t, x, y) when a goal was set
+    commands: int = 0
+    interventions: int = 0
+    collided_at: float | None = None
+    status: dict = dataclasses.field(default_factory=dict)
+
+
+class SimRobot(Node):
+    def __init__(self, shapes: list, params: CarParams, occupancy: np.ndarray, resolution: float,
+                 origin: tuple[float, float], start: np.ndarray, goals: np.ndarray, seed: int = 0, context=None,
+                 direct: bool = False, odom_rate: float = 50.0, cmd_rate: float = 20.0, cmd_timeout: float = 0.25,
+                 control_period: float = 0.05) -> None:
+        """``direct``: no filter in the loop, the robot executes its own nominal commands."""
+        super().__init__("sim_robot", context=context)
+        self.shapes, self.params, self.direct = shapes, params, direct
+        self.x = np.asarray(start, float).reshape(1, 4).copy()
+        self.goals, self.goal_index = np.asarray(goals, float), 0
+        self.rng = np.random.default_rng(seed)
+        self.dt, self.control_period, self.cmd_timeout = 1.0 / odom_rate, control_period, cmd_timeout
+        self.log = Log()
+        self.running = False
+        self.t0 = time.monotonic()
+        self._filtered = np.zeros(2)
+        self._filtered_at = -math.inf
+        self._sent: dict[tuple[int, int], tuple[float, np.ndarray]] = {}
+        self._intervened = False
+        self.map_pub = self.create_publisher(OccupancyGrid, "map", LATCHED)
+        self.odom_pub = self.create_publisher(Odometry, "odom", 10)
+        self.cmd_pub = self.create_publisher(TwistStamped, "cmd_vel_smoothed", 10)
+        self.create_subscription(TwistStamped, "cmd_vel", self._on_cmd, 50)
+        self.create_subscription(OccupancyGrid, "brt/value_grid", self._on_grid, LATCHED)
+        self.create_subscription(String, "brt/status", lambda m: setattr(self.log, "status", json.loads(m.data)), 10)
+        grid = occupancy_message(occupancy, resolution, origin)
+        grid.header.stamp = self.get_clock().now().to_msg()
+        self.map_pub.publish(grid)
+        self.create_timer(self.dt, self._step)
+        self.create_timer(1.0 / cmd_rate, self._command)
+
+    def now(self) -> float:
+        return time.monotonic() - self.t0
+
+    def _step(self) -> None:
+        """Physics at odom_rate: integrate with the latest filtered command, publish odometry."""
+        if self.running and self.log.collided_at is None:
+            twist = self._filtered if time.monotonic() - self._filtered_at <= self.cmd_timeout else np.zeros(2)
+            u = safety_filter.twist_to_control(self.params, self.x, twist[None], self.control_period)
+            d = ball(self.rng, (1,), self.params.d_max)
+            self.x = closed_loop.rk4(self.params, self.x, u, d, self.dt)
+            t = self.now()
+            self.log.states.append((t, *self.x[0], self._intervened))
+            if union_sdf(self.shapes, self.x[:, :2])[0] <= 0:
+                self.log.collided_at = t
+            elif np.linalg.norm(self.x[0, :2] - self.goals[self.goal_index]) <= EpisodeSettings.goal_tolerance:
+                self.goal_index = (self.goal_index + 1) % len(self.goals)
+                self.log.goals.append((t, *self.goals[self.goal_index]))
+        x, y, v, theta = self.x[0]
+        self.odom_pub.publish(odometry_message(x, y, theta, v, "map", self.get_clock().now().to_msg()))
+
+    def _command(self) -> None:
+        """The careless nominal command: straight for the current goal."""
+        if not self.running or self.log.collided_at is not None:
+            return
+        nominal = closed_loop.nominal_twist(self.params, self.x, self.goals[self.goal_index][None],
+                                            np.array(["goal"]))[0]
+        msg = TwistStamped()
+        msg.header.frame_id = "base_link"
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.twist.linear.x, msg.twist.angular.z = float(nominal[0]), float(nominal[1])
+        self.log.commands += 1
+        if self.direct:
+            self._filtered, self._filtered_at = nominal, time.monotonic()
+        else:
+            self._sent[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = (time.perf_counter(), nominal)
+            self.cmd_pub.publish(msg)
+
+    def _on_cmd(self, msg: TwistStamped) -> None:
+        self._filtered = np.array([msg.twist.linear.x, msg.twist.angular.z])
+        self._filtered_at = time.monotonic()
+        sent = self._sent.pop((msg.header.stamp.sec, msg.header.stamp.nanosec), None)
+        if sent is None:  # a fail-closed stop of the node's own timer
+            self._intervened = True
+            return
+        self.log.latency_s.append(time.perf_counter() - sent[0])
+        self._intervened = bool(np.abs(self._filtered - sent[1]).max() > 1e-6)
+        self.log.interventions += self._intervened
+
+    def _on_grid(self, msg: OccupancyGrid) -> None:
+        cost = occupancy_array(msg)
+        origin = (msg.info.origin.position.x, msg.info.origin.position.y)
+        self.log.grids.append((self.now(), origin, msg.info.resolution, cost >= 100))
+
+
+def drive(domain: int, robot_args: dict, seconds: float, ready: Callable[[Log], bool],
+          timeout: float = 120.0) -> Log:
+    """Create a SimRobot on ``domain`` (``robot_args``: its constructor's keywords), spin until
+    ``ready(log)`` (brt_node filtering), then drive for ``seconds`` or until a collision."""
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain)
+    robot = SimRobot(context=context, **robot_args)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(robot)
+    try:
+        deadline = time.monotonic() + timeout
+        while not ready(robot.log):
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"brt_node did not start filtering within {timeout:g} s: "
+                                   f"{robot.log.status.get('reason', 'no status received')}")
+            executor.spin_once(timeout_sec=0.05)
+        robot.running = True
+        robot.t0 = time.monotonic()
+        end = time.monotonic() + seconds
+        while time.monotonic() < end and robot.log.collided_at is None:
+            executor.spin_once(timeout_sec=0.01)
+        robot.running = False
+        return robot.log
+    finally:
+        executor.shutdown(timeout_sec=2.0)
+        robot.destroy_node()
+        rclpy.shutdown(context=context)

@@ -1,0 +1,114 @@
+"""The car and Air3D as ``hj_reachability`` dynamics: the shared formulas of
+:mod:`hjrno_ros.core.dynamics` evaluated with ``jax.numpy``, and the grid conversion."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import hj_reachability as hj
+import jax.numpy as jnp
+import numpy as np
+
+from hjrno_ros.core.dynamics import (
+    Air3DParams,
+    CarParams,
+    _concrete,
+    air3d_f,
+    air3d_optimal_control,
+    air3d_worst_disturbance,
+    car_f,
+    car_optimal_control,
+    car_worst_disturbance,
+)
+from hjrno_ros.core.grids import GridSpec
+
+
+def hj_grid(grid: GridSpec) -> hj.Grid:
+    """``grid`` as an ``hj_reachability`` grid (periodic axes exclude their end point)."""
+    return hj.Grid.from_lattice_parameters_and_boundary_conditions(
+        hj.sets.Box(np.array(grid.lo), np.array(grid.hi)), grid.shape, periodic_dims=grid.periodic
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# hj_reachability wrappers.  Instances compare equal when their parameters do, so the solver's
+# jit cache (dynamics is a static argument) is shared between equal parameter sets.
+
+
+class _SharedFormulas(hj.ControlAndDisturbanceAffineDynamics):
+    """hj dynamics whose f, optimal control and disturbance are the shared formulas above."""
+
+    _f = staticmethod(car_f)
+    _control = staticmethod(car_optimal_control)
+    _disturbance = staticmethod(car_worst_disturbance)
+
+    def __init__(self, params, control_space, disturbance_space):
+        self.params = params
+        super().__init__("max", "min", control_space, disturbance_space)
+
+    def __call__(self, state, control, disturbance, time):
+        return type(self)._f(self.params, state, control, disturbance, jnp)
+
+    def optimal_control_and_disturbance(self, state, time, grad_value):
+        p = self.params
+        return type(self)._control(p, state, grad_value, jnp), type(self)._disturbance(p, state, grad_value, jnp)
+
+    def __hash__(self) -> int:
+        return hash((type(self), self.params)) if _concrete(dataclasses.astuple(self.params)) else id(self)
+
+    def __eq__(self, other) -> bool:
+        if not _concrete(dataclasses.astuple(self.params)):
+            return self is other
+        return type(self) is type(other) and self.params == other.params
+
+
+class DynamicDubinsCar(_SharedFormulas):
+    """The dynamic Dubins car as ``hj_reachability`` dynamics; control maximises, disturbance minimises."""
+
+    state_names = ("x", "y", "v", "theta")
+
+    def __init__(self, params: CarParams = CarParams()):
+        p = params
+        super().__init__(
+            p,
+            hj.sets.Box(jnp.array([-p.a_max, -p.kappa_max]), jnp.array([p.a_max, p.kappa_max])),
+            hj.sets.Ball(jnp.zeros(2), jnp.asarray(p.d_max)),
+        )
+
+    def open_loop_dynamics(self, state, time):
+        v, theta = state[2], state[3]
+        return jnp.array([v * jnp.cos(theta), v * jnp.sin(theta), 0.0, 0.0])
+
+    def control_jacobian(self, state, time):
+        return jnp.array([[0.0, 0.0], [0.0, 0.0], [1.0, 0.0], [0.0, state[2]]])
+
+    def disturbance_jacobian(self, state, time):
+        return jnp.array([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0], [0.0, 0.0]])
+
+
+class Air3D(_SharedFormulas):
+    """Air3D as ``hj_reachability`` dynamics; the evader (control) maximises, the pursuer minimises."""
+
+    state_names = ("x", "y", "psi")
+    _f = staticmethod(air3d_f)
+    _control = staticmethod(air3d_optimal_control)
+    _disturbance = staticmethod(air3d_worst_disturbance)
+
+    def __init__(self, params: Air3DParams = Air3DParams()):
+        p = params
+        super().__init__(
+            p,
+            hj.sets.Box(jnp.array([-p.evader_max_turn_rate]), jnp.array([p.evader_max_turn_rate])),
+            hj.sets.Box(jnp.array([-p.pursuer_max_turn_rate]), jnp.array([p.pursuer_max_turn_rate])),
+        )
+
+    def open_loop_dynamics(self, state, time):
+        p = self.params
+        vp = p.pursuer_speed
+        return jnp.array([-p.evader_speed + vp * jnp.cos(state[2]), vp * jnp.sin(state[2]), 0.0])
+
+    def control_jacobian(self, state, time):
+        return jnp.array([[state[1]], [-state[0]], [-1.0]])
+
+    def disturbance_jacobian(self, state, time):
+        return jnp.array([[0.0], [0.0], [1.0]])
