@@ -42,7 +42,9 @@ from std_srvs.srv import SetBool  # noqa: E402
 from hjrno_ros.core import geometry  # noqa: E402
 from hjrno_ros.core.safety_filter import FilterSettings  # noqa: E402
 from hjrno_ros.learning import checkpoint  # noqa: E402
-from hjrno_ros.ros.node import INFERENCE_NICE, BrtNode, refined_filter_settings  # noqa: E402
+from hjrno_ros.ros.node import BrtNode  # noqa: E402
+from hjrno_ros.ros.parameters import refined_filter_settings  # noqa: E402
+from hjrno_ros.ros.value_worker import INFERENCE_NICE  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DOMAIN = 1 + os.getpid() % 50  # Linux: ids <= 101 avoid the ephemeral port range
@@ -181,6 +183,7 @@ def driver_and_node(model_stem: Path, domain: int, **params) -> Iterator[tuple[D
     time.sleep(0.2)
     overrides = [Parameter(k, value=v) for k, v in {"model_path": str(model_stem), **params}.items()]
     node = BrtNode(context=context, parameter_overrides=overrides)
+    node.start()
     executor.add_node(node)
     try:
         yield driver, node
@@ -236,7 +239,7 @@ def test_inference_thread_yields_the_cpu_to_the_command_path(ros):
     """The inference thread runs niced (Linux schedules threads by their own nice value), so a busy
     CPU serves the executor's command callbacks first."""
     _, node = ros
-    worker, niced = node._worker.native_id, min(19, os.getpriority(os.PRIO_PROCESS, 0) + INFERENCE_NICE)
+    worker, niced = node.values.native_id, min(19, os.getpriority(os.PRIO_PROCESS, 0) + INFERENCE_NICE)
     assert wait_for(lambda: os.getpriority(os.PRIO_PROCESS, worker) == niced, 5.0)
 
 
@@ -249,7 +252,7 @@ def test_parameter_updates_are_validated(ros):
     assert driver.set_param("filter_mode", "switch") == (True, "")
     assert wait_for(lambda: driver.status["filter_mode"] == "switch", 2.0)
     assert driver.set_param("filter_mode", "qp")[0] and driver.set_param("decay_rate", 8.0)[0]
-    assert wait_for(lambda: (node._settings.mode, node._settings.decay_rate) == ("qp", 8.0), 2.0)
+    assert wait_for(lambda: (node.settings.mode, node.settings.decay_rate) == ("qp", 8.0), 2.0)
     assert driver.set_param("filter_mode", "blend")[0] and driver.set_param("decay_rate", 4.0)[0]
     for name, value, words in (("epsilon", -1.0, "epsilon"), ("filter_mode", "magic", "filter_mode"),
                                ("control_period", 0.0, "control_period"), ("decay_rate", -1.0, "decay_rate")):
@@ -257,7 +260,7 @@ def test_parameter_updates_are_validated(ros):
         assert not ok and words in reason, (name, reason)
     ok, _ = driver.set_param("epsilon", 0.2)
     assert ok and wait_for(lambda: driver.status["epsilon"] == 0.2, 2.0)
-    assert node._settings.epsilon == 0.2
+    assert node.settings.epsilon == 0.2
     assert driver.set_param("epsilon", eps)[0]
 
 
@@ -266,7 +269,7 @@ def test_inflation_radius_grows_obstacles_live(ros):
     closer than r to the wall become lethal; a negative radius other than -1 (auto) is refused."""
     driver, node = ros
     settle(driver, 3.5, 0.0, 0.5, 0.0)  # 1.5 m from the wall (NEAR_WALL is the next test's: a new window there)
-    h = max(node._vf.grid.spacings[:2])  # the default -1: h/√2 of the model grid (square cells)
+    h = max(node.vf.grid.spacings[:2])  # the default -1: h/√2 of the model grid (square cells)
     assert node.get_parameter("inflation_radius").value == -1.0
     assert driver.status["value_grid"]["inflation_radius"] == pytest.approx(h / math.sqrt(2))
     sd = geometry.occupancy_signed_distance(occupancy(), RES)
@@ -299,13 +302,13 @@ def ground_truth_control(node: BrtNode, state: np.ndarray) -> tuple[np.ndarray, 
     from hjrno_ros.truth.solver import solve
     from hjrno_ros.truth.systems import DynamicDubinsCar
 
-    vf = node._vf
+    vf = node.vf
     wx, wy = vf.window
     lo, hi = (state[0] - wx / 2, state[1] - wy / 2), (state[0] + wx / 2, state[1] + wy / 2)
     grid = car_grid((24, 24, 7, 12), lo, hi, (vf.params.v_min, vf.params.v_max))
     sd = geometry.occupancy_signed_distance(occupancy(), RES)
     l0 = geometry.sample_raster(sd, ORIGIN, RES, grid.states()[:, :, 0, 0, :2], outside=-RES)
-    l0 -= node._inflation(node.get_parameter("inflation_radius").value)  # the obstacles the node sees
+    l0 -= node.values.inflation()  # the obstacles the node sees
     target = np.broadcast_to(l0[:, :, None, None], grid.shape).astype(np.float32)
     values, _ = solve(DynamicDubinsCar(vf.params), grid, target, accuracy="medium", max_horizon=20.0)
     grad = ValueTable(grid, values).gradient(state)[0]
@@ -320,7 +323,7 @@ def test_driving_into_wall_is_overridden(ros):
     is not what the true value function asks for; at v_max the feasible u1 is 0).
     """
     driver, node = ros
-    bundled = Path(node._model_stem) == ROOT / "models" / "default"
+    bundled = Path(node.model_stem) == ROOT / "models" / "default"
     theta, v = 0.3, 1.0
     st = settle(driver, *NEAR_WALL, v, theta)
     eps = st["epsilon"]
@@ -331,7 +334,7 @@ def test_driving_into_wall_is_overridden(ros):
         out = driver.command(1.0, 0.0)
         assert out is not None and (out.linear.x, out.angular.z) != (1.0, 0.0)
         assert wait_for(lambda: driver.status["state"] == "intervening", 2.0), driver.status
-        p, dt = node._vf.params, node._settings.dt
+        p, dt = node.vf.params, node.settings.dt
         assert min(abs(out.linear.x - np.clip(v + k * p.a_max * dt, p.v_min, p.v_max)) for k in (-1, 0, 1)) < 1e-9
         assert abs(abs(out.angular.z) - v * p.kappa_max) < 1e-9  # bang-bang curvature, ω = v·u2
         grid = driver.grid  # inside the wall V <= V0 < 0: the palette says lethal
@@ -428,7 +431,7 @@ def test_signed_distance_runs_in_the_inference_thread_not_the_executor(ros, monk
     monkeypatch.setattr(geometry, "occupancy_signed_distance", recording)
     driver.map_pub.publish(map_msg(occupancy(), stamp_sec=4))
     assert wait_for(lambda: driver.status["map_stamp"] == [4, 0], 3.0)
-    assert threads and set(threads) == {"brt_inference"}
+    assert threads and set(threads) == {"brt_value_worker"}
     monkeypatch.undo()
     driver.map_pub.publish(map_msg(occupancy()))  # leave the stamp-1 map latched
     assert wait_for(lambda: driver.status["map_stamp"] == [1, 0], 3.0)
@@ -436,7 +439,7 @@ def test_signed_distance_runs_in_the_inference_thread_not_the_executor(ros, monk
 
 def test_bypass_passes_commands_and_reenable_filters(ros):
     driver, node = ros
-    bundled = Path(node._model_stem) == ROOT / "models" / "default"
+    bundled = Path(node.model_stem) == ROOT / "models" / "default"
     st = settle(driver, *NEAR_WALL, 1.0, 0.3)
     eps = st["epsilon"]
     if not bundled:
@@ -471,6 +474,7 @@ def test_pose_topic_and_stamped_commands(ros, model_stem):
     cmd_pub = driver.create_publisher(TwistStamped, "pose_in", 10)
     outputs: list[TwistStamped] = []
     driver.create_subscription(TwistStamped, "pose_out", outputs.append, 10)
+    node.start()
     driver.executor.add_node(node)
     try:
         driver.pose, driver.v, driver.frame = (0.0, 0.0, 0.0), 0.5, "odom"
@@ -522,7 +526,7 @@ def test_bundled_models_resolve_by_name():
     """model_path may name a bundled model: the default loads with each member in its two frames and the ε
     calibrated that way, ``v5`` is the same weights with one frame per member and its own ε; an unknown
     name is one clear error."""
-    from hjrno_ros.ros.node import StartupError, resolve_model
+    from hjrno_ros.ros.model_files import resolve_model
 
     stem = resolve_model("")
     assert stem == ROOT / "models" / "default" and resolve_model(str(stem)) == stem
@@ -534,7 +538,7 @@ def test_bundled_models_resolve_by_name():
     assert not any(hasattr(m, "elements") for m in plain.members) and plain_card["epsilon"] != card["epsilon"]
     pairs = zip(plain.state_dict().values(), model.state_dict().values(), strict=True)
     assert all(np.array_equal(a.numpy(), b.numpy()) for a, b in pairs)  # the same weights
-    with pytest.raises(StartupError, match="no bundled model 'nope'"):
+    with pytest.raises(ValueError, match="no bundled model 'nope'"):
         resolve_model("nope")
 
 
@@ -543,7 +547,8 @@ def test_heading_across_pi_reads_the_stencil_not_its_clamped_edge():
     −π + 0.05 (the same heading turned 0.1 rad on): the lookup must use π + 0.05, inside the stencil,
     not −π + 0.05, which the table would clamp to its lower edge (a heading 0.3 rad off)."""
     from hjrno_ros.learning.value_function import LearnedValueFunction
-    from hjrno_ros.ros.node import RobotState, table_state
+    from hjrno_ros.ros.inputs import RobotState
+    from hjrno_ros.ros.value_worker import table_state
 
     vf = LearnedValueFunction(ROOT / "models" / "default", device="cpu")
     center, theta = (0.0, 0.0), math.pi - 0.05
@@ -559,21 +564,27 @@ def test_heading_across_pi_reads_the_stencil_not_its_clamped_edge():
 def test_config_yaml_lists_every_parameter_with_its_default():
     import yaml
 
-    from hjrno_ros.ros.node import PARAMETERS
+    from hjrno_ros.ros.parameters import PARAMETERS
 
     params = yaml.safe_load((ROOT / "config" / "brt_node.yaml").read_text())["brt_node"]["ros__parameters"]
-    assert params == {name: default for name, (default, _, _) in PARAMETERS.items()}
-    assert all(type(params[name]) is type(default) for name, (default, _, _) in PARAMETERS.items())
+    assert params == {name: spec.default for name, spec in PARAMETERS.items()}
+    assert all(type(params[name]) is type(spec.default) for name, spec in PARAMETERS.items())
 
 
 def test_refined_epsilon_comes_from_the_parameter_then_the_card_then_epsilon():
     """refine_epsilon >= 0 holds from the first stage; -1 takes the card's refine_epsilon from the stage it
     was calibrated at; without one in the card the refined table keeps epsilon's settings."""
+    import dataclasses
+
+    from hjrno_ros.core.model_card import ModelCard
+
     base = FilterSettings(epsilon=0.2, mode="blend")
-    card = {"epsilon": 0.2, "refine_epsilon": 0.12, "refine_calibration": {"horizon_s": 16.0}}
+    plain = dataclasses.replace(ModelCard.load(ROOT / "models" / "default"), epsilon=0.2, refine_epsilon=None,
+                                refine_horizon=None)
+    card = dataclasses.replace(plain, refine_epsilon=0.12, refine_horizon=16.0)
     assert refined_filter_settings(card, base, {"refine_epsilon": 0.3}) == (FilterSettings(0.3, "blend"), 0.0)
     assert refined_filter_settings(card, base, {"refine_epsilon": -1.0}) == (FilterSettings(0.12, "blend"), 16.0)
-    assert refined_filter_settings({"epsilon": 0.2}, base, {"refine_epsilon": -1.0}) == (base, 0.0)
+    assert refined_filter_settings(plain, base, {"refine_epsilon": -1.0}) == (base, 0.0)
 
 
 def test_refinement_takes_over_the_filter_for_its_map_only(model_stem, tmp_path):
@@ -589,10 +600,10 @@ def test_refinement_takes_over_the_filter_for_its_map_only(model_stem, tmp_path)
         assert st["refinement"]["state"] in ("waiting", "running") and not st["refinement"]["error"], st
         assert wait_for(lambda: driver.status.get("value_source") == "refined", 240.0), driver.status
         assert wait_for(lambda: node.status()["refinement"]["state"] == "done", 30.0), node.status()  # child exits
-        st, refined = node.status(), node._refined
+        st, refined = node.status(), node.values.refinement.refined
         assert st["refinement"] == {"state": "done", "error": "", "horizon_s": 1.0, "settled": refined.settled,
                                     "wall_s": refined.wall_s, "cpus": 1}, st  # refine_cpus=1
-        assert node._value.table is refined.table and refined.table.grid.shape[:2] == (63, 63)  # 20 m / h
+        assert node.values.value.table is refined.table and refined.table.grid.shape[:2] == (63, 63)  # 20 m / h
         state = np.array([*NEAR_WALL, v, theta])
         assert st["value"] == pytest.approx(float(refined.table.value(state)[0]), abs=1e-6)
         assert (st["refine_epsilon"], st["refine_epsilon_from_s"]) == (0.7, 1.0)  # -1: the card's, from 1 s on
@@ -608,7 +619,7 @@ def test_refinement_takes_over_the_filter_for_its_map_only(model_stem, tmp_path)
             assert driver.set_param(name, value)[0], name
         out = driver.command(1.0, 0.0)  # V < the card's refine_epsilon 0.7: epsilon's 0 is not what acts
         assert out is not None and (out.linear.x, out.angular.z) != (1.0, 0.0), out
-        node._refined_from = 2.0  # as if calibrated at 2 s: this 1 s table takes epsilon's 0, and V > 0 passes
+        node.refined_from = 2.0  # as if calibrated at 2 s: this 1 s table takes epsilon's 0, and V > 0 passes
         out = driver.command(1.0, 0.0)
         assert out is not None and (out.linear.x, out.angular.z) == (1.0, 0.0), out
         assert not driver.set_param("refine_epsilon", -0.5)[0]  # only -1 or >= 0
@@ -618,9 +629,10 @@ def test_refinement_takes_over_the_filter_for_its_map_only(model_stem, tmp_path)
         assert driver.set_param("refine_epsilon", 0.7)[0] and node.status()["refine_epsilon"] == 0.7
         out = driver.command(1.0, 0.0)  # V < refine_epsilon: the refined table's epsilon acts, not epsilon's 0
         assert out is not None and (out.linear.x, out.angular.z) != (1.0, 0.0), out
-        assert node._last_decision.intervened and node.status()["epsilon"] == 0.0
+        assert node.last_decision.intervened and node.status()["epsilon"] == 0.0
         driver.map_pub.publish(map_msg(occupancy(), stamp_sec=2))
         assert wait_for(lambda: (s := node.status())["map_stamp"] == [2, 0] and s["value_source"] == "operator",
                         5.0), node.status()
-        assert node._refined is None or node._refined.map_version != node._map.version
+        refined = node.values.refinement.refined
+        assert refined is None or refined.map_version != node.maps.current.version
         assert wait_for(lambda: node.status()["refinement"]["state"] == "running", 10.0), node.status()  # 2 s on

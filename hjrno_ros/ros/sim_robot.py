@@ -27,7 +27,7 @@ from std_msgs.msg import String
 from hjrno_ros.core import safety_filter
 from hjrno_ros.core.dynamics import CarParams
 from hjrno_ros.core.geometry import union_sdf
-from hjrno_ros.ros.node import LATCHED, occupancy_array, occupancy_message, odometry_message
+from hjrno_ros.ros.messages import LATCHED, occupancy_array, occupancy_message, odometry_message
 from hjrno_ros.studies import closed_loop
 from hjrno_ros.studies.closed_loop import EpisodeSettings
 from hjrno_ros.studies.simulation import ball

@@ -74,7 +74,7 @@ def _percentile_ms(values: list[float], q: float) -> float | None:
 
 def run(out: Path, seconds: float = 30.0, model: Path | None = None) -> int:
     """Benchmark a brt_node process for ``seconds`` of driving; print a table, write node.md/node.json."""
-    from hjrno_ros.ros.node import bench_drive  # rclpy only when the benchmark runs
+    from hjrno_ros.ros.bench_driver import bench_drive  # rclpy only when the benchmark runs
 
     if not seconds > 0:
         raise ValueError(f"seconds must be > 0, got {seconds}")

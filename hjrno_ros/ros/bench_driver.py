@@ -1,0 +1,150 @@
+"""The load generator of ``hjrno bench node``: drives a running brt_node over DDS and records latencies."""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import TwistStamped
+from nav_msgs.msg import OccupancyGrid, Odometry
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from std_msgs.msg import String
+from std_srvs.srv import SetBool
+
+from hjrno_ros.ros.messages import LATCHED, occupancy_message, odometry_message
+
+NODE_NAME = "brt_node"
+
+
+class BenchDriver(Node):
+    """Drives a running brt_node over DDS and records latencies (perf_counter, this process).
+
+    Publishes a static robot's odometry at ``odom_rate`` and TwistStamped commands at ``cmd_rate``
+    (each keyed by its stamp, which the node copies through); ``publish_map`` latches a map and
+    remembers when.  Latencies: command → filtered command (matched by stamp) and map → value grid
+    (matched by ``info.map_load_time`` = the map's stamp).
+    """
+
+    def __init__(self, context: Any, pose: tuple[float, float, float], speed: float, frame_id: str = "map",
+                 odom_rate: float = 50.0, cmd_rate: float = 20.0) -> None:
+        super().__init__("brt_bench_driver", context=context)
+        qos = LATCHED
+        self.pose, self.speed, self.frame_id = pose, speed, frame_id
+        self.map_pub = self.create_publisher(OccupancyGrid, "map", qos)
+        self.odom_pub = self.create_publisher(Odometry, "odom", 10)
+        self.cmd_pub = self.create_publisher(TwistStamped, "cmd_vel_smoothed", 10)
+        self.sent: dict[tuple[int, int], float] = {}
+        self.cmd_latency: list[float] = []  # s
+        self.map_sent: dict[tuple[int, int], float] = {}
+        self.map_latency: list[float] = []  # s
+        self.status: dict = {}
+        self.sending = False
+        self.create_subscription(TwistStamped, "cmd_vel", self._on_out, 50)
+        self.create_subscription(OccupancyGrid, "brt/value_grid", self._on_grid, qos)
+        self.create_subscription(String, "brt/status", lambda m: setattr(self, "status", json.loads(m.data)), 10)
+        self.create_timer(1.0 / odom_rate, self._odom)
+        self.create_timer(1.0 / cmd_rate, self._cmd)
+
+    def publish_map(self, occupancy: np.ndarray, resolution: float, origin: tuple[float, float], sec: int) -> None:
+        msg = occupancy_message(occupancy, resolution, origin, self.frame_id)
+        msg.header.stamp.sec = sec
+        self.map_sent[(sec, 0)] = time.perf_counter()
+        self.map_pub.publish(msg)
+
+    def _odom(self) -> None:
+        self.odom_pub.publish(odometry_message(*self.pose, self.speed, self.frame_id,
+                                               self.get_clock().now().to_msg()))
+
+    def _cmd(self) -> None:
+        if not self.sending:
+            return
+        msg = TwistStamped()
+        msg.header.frame_id = "base_link"
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.twist.linear.x, msg.twist.angular.z = float(self.speed), 0.1
+        self.sent[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = time.perf_counter()
+        self.cmd_pub.publish(msg)
+
+    def _on_out(self, msg: TwistStamped) -> None:
+        sent = self.sent.pop((msg.header.stamp.sec, msg.header.stamp.nanosec), None)
+        if sent is not None:
+            self.cmd_latency.append(time.perf_counter() - sent)
+
+    def _on_grid(self, msg: OccupancyGrid) -> None:
+        sent = self.map_sent.pop((msg.info.map_load_time.sec, msg.info.map_load_time.nanosec), None)
+        if sent is not None:
+            self.map_latency.append(time.perf_counter() - sent)
+
+
+def bench_drive(domain_id: int, maps: list[np.ndarray], resolution: float, origin: tuple[float, float],
+                pose: tuple[float, float, float], speed: float, seconds: float, bypass_seconds: float = 0.0,
+                map_period: float = 1.0, ready_timeout: float = 120.0, on_ready: Callable[[], None] | None = None,
+                on_done: Callable[[], None] | None = None, alive: Callable[[], bool] = lambda: True) -> dict:
+    """Run a BenchDriver against a brt_node on ``domain_id``.
+
+    Waits until the node filters (status ok), calls ``on_ready``, sends commands for ``seconds`` while
+    publishing the next of ``maps`` every ``map_period``, calls ``on_done``; then, if ``bypass_seconds``
+    > 0, bypasses the filter (``~/enable`` false) and sends commands for that long again: the same
+    process and DDS path without the filter, a baseline for the command latency.  Returns raw
+    latencies (s), counts and the node's last status.
+    """
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    driver = BenchDriver(context, pose, speed)
+    enable = driver.create_client(SetBool, f"/{NODE_NAME}/enable")
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(driver)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    try:
+        driver.publish_map(maps[0], resolution, origin, 1)
+        end = time.monotonic() + ready_timeout
+        while driver.status.get("state") != "ok":
+            if time.monotonic() > end or not alive():
+                raise RuntimeError(f"brt_node did not become ready: {driver.status.get('reason', 'no status')}")
+            time.sleep(0.05)
+        driver.map_latency.clear()  # the first map also waited for odometry and start-up
+        if on_ready is not None:
+            on_ready()
+        driver.sending = True
+        start = time.monotonic()
+        k = 1
+        while time.monotonic() - start + map_period <= seconds and alive():
+            time.sleep(map_period)
+            k += 1
+            driver.publish_map(maps[(k - 1) % len(maps)], resolution, origin, k)
+        time.sleep(max(0.0, seconds - (time.monotonic() - start)))
+        driver.sending = False
+        if on_done is not None:
+            on_done()
+        time.sleep(0.5)  # let the last outputs arrive
+        result = {"cmd_latency_s": list(driver.cmd_latency), "cmd_sent": len(driver.cmd_latency) + len(driver.sent),
+                  "map_latency_s": list(driver.map_latency), "maps_sent": k - 1, "status": dict(driver.status),
+                  "bypass_latency_s": [], "bypass_sent": 0}
+        if bypass_seconds > 0 and alive():
+            if not enable.wait_for_service(timeout_sec=5.0):
+                raise RuntimeError("brt_node's ~/enable service is not available")
+            future = enable.call_async(SetBool.Request(data=False))
+            end = time.monotonic() + 5.0
+            while not future.done() and time.monotonic() < end:
+                time.sleep(0.01)
+            driver.cmd_latency.clear()
+            driver.sent.clear()
+            driver.sending = True
+            time.sleep(bypass_seconds)
+            driver.sending = False
+            time.sleep(0.5)
+            result["bypass_latency_s"] = list(driver.cmd_latency)
+            result["bypass_sent"] = len(driver.cmd_latency) + len(driver.sent)
+        return result
+    finally:
+        executor.shutdown(timeout_sec=2.0)
+        driver.destroy_node()
+        rclpy.shutdown(context=context)
+        spinner.join(timeout=2.0)

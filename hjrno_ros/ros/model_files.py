@@ -1,0 +1,43 @@
+"""Where the node finds its model: a path, or a bundled model by name in the checkout or the install."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from hjrno_ros.core.model_card import paths
+
+
+def bundled_model_candidates(name: str = "default") -> list[Path]:
+    """Where the bundled model ``name`` is looked for: the source checkout, then the package's share folder
+    (ament index via AMENT_PREFIX_PATH, the install prefix this module lives in, sys.prefix)."""
+    here = Path(__file__).resolve()
+    shares = []
+    try:
+        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+
+        try:
+            shares.append(Path(get_package_share_directory("hjrno_ros")))
+        except (PackageNotFoundError, OSError, ValueError):  # OSError: AMENT_PREFIX_PATH unset
+            pass
+    except ImportError:
+        pass
+    if here.parents[2].name == "site-packages":  # <prefix>/lib/pythonX.Y/site-packages/hjrno_ros/ros/this.py
+        shares.append(here.parents[5] / "share" / "hjrno_ros")
+    shares.append(Path(sys.prefix) / "share" / "hjrno_ros")
+    candidates = [here.parents[2] / "models" / name] + [share / "models" / name for share in shares]
+    return list(dict.fromkeys(candidates))
+
+
+def resolve_model(model_path: str) -> Path:
+    """The model stem to load: a path to a model, or the name of a bundled one ('' = ``default``, e.g. ``v5``);
+    ValueError when no such bundled model is found."""
+    if model_path and ("/" in model_path or paths(Path(model_path).expanduser())[1].is_file()):
+        return Path(model_path).expanduser()
+    name = model_path or "default"
+    for stem in bundled_model_candidates(name):
+        if paths(stem)[1].is_file():
+            return stem
+    looked = ", ".join(str(p) for p in bundled_model_candidates(name))
+    raise ValueError(f"no bundled model {name!r} found (looked for {looked}); set the model_path parameter "
+                     "to a model stem")

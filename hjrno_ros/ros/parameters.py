@@ -1,0 +1,169 @@
+"""brt_node's parameters: one table (defaults, units, ranges, read-only), validation, the docs table.
+
+Float parameters accept integers (``-p inflation_radius:=0``): they are declared with dynamic typing
+and every numeric value is converted to float before use; a non-numeric value is rejected with one line.
+``docs/node.md``'s parameter table is :func:`markdown_table` (a test keeps it current).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+
+from hjrno_ros.core import safety_filter
+from hjrno_ros.core.model_card import ModelCard
+
+
+@dataclasses.dataclass(frozen=True)
+class Param:
+    default: Any
+    description: str
+    lo: float | None = None  # inclusive range, also in the descriptor
+    hi: float | None = None
+    read_only: bool = False  # topics, types, model: start-up only
+
+    def descriptor(self) -> ParameterDescriptor:
+        extra: dict[str, Any] = {"read_only": self.read_only}
+        if isinstance(self.default, float):
+            extra["dynamic_typing"] = True  # integers too; validate() converts and checks
+            if self.lo is not None:
+                extra["floating_point_range"] = [FloatingPointRange(from_value=float(self.lo), to_value=float(self.hi),
+                                                                    step=0.0)]
+        elif isinstance(self.default, int) and not isinstance(self.default, bool) and self.lo is not None:
+            extra["integer_range"] = [IntegerRange(from_value=int(self.lo), to_value=int(self.hi), step=1)]
+        return ParameterDescriptor(description=self.description, **extra)
+
+
+PARAMETERS: dict[str, Param] = {
+    "map_topic": Param("map", "OccupancyGrid topic (reliable, transient local, depth 1)", read_only=True),
+    "odom_topic": Param("odom", "Odometry topic (sensor-data QoS); speed = twist.linear.x", read_only=True),
+    "pose_topic": Param("", "optional PoseWithCovarianceStamped in the map frame (e.g. amcl_pose); '' = pose from "
+                            "odometry", read_only=True),
+    "cmd_vel_in_topic": Param("cmd_vel_smoothed", "nominal velocity command in", read_only=True),
+    "cmd_vel_out_topic": Param("cmd_vel", "filtered velocity command out", read_only=True),
+    "enable_stamped_cmd_vel": Param(False, "TwistStamped instead of Twist on both command topics (Nav2 Jazzy)",
+                                    read_only=True),
+    "value_grid_topic": Param("brt/value_grid", "V slice at the robot's speed/heading as a costmap-palette "
+                                                "OccupancyGrid", read_only=True),
+    "value_topic": Param("brt/value", "V slice in metres, Float32MultiArray (row-major, x fastest)", read_only=True),
+    "status_topic": Param("brt/status", "JSON status (std_msgs/String, 10 Hz)", read_only=True),
+    "model_path": Param("", "model stem or .json/.safetensors path, or the name of a bundled model (v5); '' = the "
+                            "bundled models/default", read_only=True),
+    "device": Param("", "torch device for inference: '' = cuda when available else cpu, or cpu, cuda, cuda:N",
+                    read_only=True),
+    "inference_threads": Param(1, "torch CPU threads for inference (keeps cores free for the command path)", 1, 64,
+                               read_only=True),
+    "epsilon": Param(-1.0, "m: intervene when V <= epsilon; -1 (startup only) = the model card's value, else 0.1"),
+    "filter_mode": Param("blend", "blend (ramp over blend_width above epsilon) | switch (only at V <= epsilon) | qp "
+                                  "(smallest change keeping dV/dt >= -decay_rate (V - epsilon))"),
+    "blend_width": Param(0.2, "m: blend mode ramps from safe to nominal over (epsilon, epsilon + blend_width]",
+                         1e-3, 10.0),
+    "decay_rate": Param(4.0, "1/s: qp mode keeps dV/dt >= -decay_rate * (V - epsilon) under the worst disturbance",
+                        1e-3, 100.0),
+    "value_clip": Param(1.0, "m: value grid palette, V <= 0 -> 100, V >= value_clip -> 0", 1e-3, 100.0),
+    "a_max": Param(-1.0, "m/s^2: -1 = model card; any other value must equal the card's", read_only=True),
+    "kappa_max": Param(-1.0, "1/m: -1 = model card; any other value must equal the card's", read_only=True),
+    "v_max": Param(-1.0, "m/s: -1 = model card; any other value must equal the card's", read_only=True),
+    "speed_tolerance": Param(0.05, "m/s: speeds this far outside the model's [v_min, v_max] fail closed", 0.0, 1.0),
+    "occupied_threshold": Param(50, "occupancy >= threshold is an obstacle", 0, 100),
+    "unknown_is_obstacle": Param(True, "unknown cells (-1) and space beyond the map are obstacles"),
+    "inflation_radius": Param(-1.0, "m: obstacles grown by this much before inference (V0 = signed distance - "
+                                    "radius); -1 = h/sqrt(2) of the model grid (makes the grid's V0 conservative); "
+                                    "for a robot of radius rho set rho + h/sqrt(2)", -1.0, 5.0),
+    "inference_rate": Param(10.0, "Hz: how often the inference thread checks whether to recompute", 0.1, 100.0),
+    "recenter_distance": Param(1.0, "m: recompute when the robot is this far from the window centre", 0.01, 100.0),
+    "odom_timeout": Param(0.5, "s: older odometry (receipt time) fails closed", 0.01, 60.0),
+    "map_timeout": Param(0.0, "s: older maps fail closed; 0 = never (map_server publishes once)", 0.0, 1e6),
+    "value_timeout": Param(1.0, "s: older value tables fail closed; recomputed every value_timeout/2", 0.05, 60.0),
+    "control_period": Param(0.05, "s: stop-republish timer period; also dt of v_cmd = v + u1*dt", 1e-3, 1.0),
+    "refine_horizon": Param(0.0, "s: simulated time the HJ solver refines the operator's value over the whole map, "
+                                 "warm-started from it, in a background process (nice 19); the filter uses each "
+                                 "refined stage for as long as that map stands; 0 = off (static maps, docs/node.md)",
+                            0.0, 600.0, read_only=True),
+    "refine_stage": Param(4.0, "s: simulated time between the refined tables handed to the filter", 0.5, 600.0,
+                          read_only=True),
+    "refine_cpus": Param(0, "CPU cores the refinement process may run on (the highest-numbered of the node's); "
+                            "0 = all but one, so the command path keeps a core to itself", 0, 1024, read_only=True),
+    "refine_epsilon": Param(-1.0, "m: epsilon while the filter reads a refined table; -1 = the model card's "
+                                  "refine_epsilon (hjrno calibrate --refine T) from stage T s on, before that stage "
+                                  "or without one the value of epsilon"),
+    "stop_pub_timeout": Param(2.0, "s: keep publishing zeros while fail-closed until this long after the last "
+                                   "nominal command; 0 = only answer commands", 0.0, 60.0),
+}
+
+
+def _number(name: str, value: Any) -> float | str:
+    """``value`` as a float, or a reason why it is not a number."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return f"{name} must be a number, got {type(value).__name__} {value!r}"
+    return float(value)
+
+
+def normalise(cfg: dict[str, Any]) -> tuple[dict[str, Any], str | None]:
+    """``cfg`` with float parameters as floats (integers accepted), or a reason why a value is unusable."""
+    out = dict(cfg)
+    for name, spec in PARAMETERS.items():
+        if name in out and isinstance(spec.default, float):
+            value = _number(name, out[name])
+            if isinstance(value, str):
+                return cfg, value
+            out[name] = value
+    return out, None
+
+
+def validate(cfg: dict[str, Any], startup: bool = False) -> str | None:
+    """A reason why the (normalised) parameter set is unusable, or None."""
+    for name, spec in PARAMETERS.items():
+        value = cfg[name]
+        if isinstance(value, float) and not math.isfinite(value):
+            return f"{name} must be finite, got {value}"
+        if spec.lo is not None and not spec.lo <= value <= spec.hi:
+            return f"{name} must lie in [{spec.lo:g}, {spec.hi:g}], got {value}"
+    eps = cfg["epsilon"]
+    if eps < 0 and not (startup and eps == -1.0):
+        return f"epsilon must be finite and >= 0 (-1 = model card, at startup only), got {eps}"
+    if cfg["filter_mode"] not in safety_filter.MODES:
+        return f"filter_mode must be one of {list(safety_filter.MODES)}, got {cfg['filter_mode']!r}"
+    r = cfg["inflation_radius"]
+    if not (r >= 0 or r == -1.0):
+        return f"inflation_radius must be >= 0, or -1 (h/sqrt(2) of the model grid), got {r}"
+    r_eps = cfg["refine_epsilon"]
+    if not (r_eps >= 0 or r_eps == -1.0):
+        return f"refine_epsilon must be >= 0, or -1 (the value of epsilon), got {r_eps}"
+    return None
+
+
+def filter_settings(card: ModelCard, cfg: dict[str, Any]) -> safety_filter.FilterSettings:
+    """The filter's settings: ``epsilon``, or for -1 the card's calibrated margin."""
+    eps = cfg["epsilon"] if cfg["epsilon"] >= 0 else card.margin()
+    return safety_filter.FilterSettings(epsilon=float(eps), mode=cfg["filter_mode"],
+                                        blend_width=float(cfg["blend_width"]), dt=float(cfg["control_period"]),
+                                        decay_rate=float(cfg["decay_rate"]))
+
+
+def refined_filter_settings(card: ModelCard, settings: safety_filter.FilterSettings,
+                            cfg: dict[str, Any]) -> tuple[safety_filter.FilterSettings, float]:
+    """The filter's settings on a refined table and the stage (simulated s) from which they hold:
+    ``refine_epsilon`` if set (>= 0), from the first stage; for -1 the card's refine_epsilon from the stage
+    it was calibrated at (``hjrno calibrate --refine``); before that stage, or without one, ``settings``."""
+    eps = cfg["refine_epsilon"]
+    if eps >= 0:
+        return dataclasses.replace(settings, epsilon=float(eps)), 0.0
+    if card.refine_epsilon is None:
+        return settings, 0.0
+    return dataclasses.replace(settings, epsilon=card.refine_epsilon), card.refine_horizon
+
+
+def markdown_table() -> str:
+    """The parameter table of docs/node.md."""
+    rows = ["| name | default | range | live | description |", "| --- | --- | --- | --- | --- |"]
+    for name, p in PARAMETERS.items():
+        default = f'"{p.default}"' if isinstance(p.default, str) else str(p.default).lower() \
+            if isinstance(p.default, bool) else repr(p.default)
+        span = f"{p.lo:g} .. {p.hi:g}" if p.lo is not None else ""
+        rows.append(f"| `{name}` | `{default}` | {span} | {'no' if p.read_only else 'yes'} | "
+                    f"{p.description.replace('|', '/')} |")
+    return "\n".join(rows) + "\n"

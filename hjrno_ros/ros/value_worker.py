@@ -1,0 +1,208 @@
+"""The value worker: the node's own thread that keeps a value table around the robot.
+
+At ``inference_rate`` it installs new maps (signed distance), and when the robot has left the
+window's centre, its speed or heading cell, or the table is half ``value_timeout`` old, it predicts
+V∞ on a window centred on the robot (a 2 × 2 (v, θ) stencil) and swaps the table in atomically.
+With background refinement, the refined table of the current map replaces the operator's while the
+robot is inside it.  It runs at a lower scheduling priority, so a busy CPU serves commands first.
+``get`` is the value input of the fail-closed check.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from hjrno_ros.core import geometry
+from hjrno_ros.core.grids import wrap_angle
+from hjrno_ros.core.value_table import ValueTable
+from hjrno_ros.ros.inputs import MapData, MapInput, RobotState, StateInput
+from hjrno_ros.ros.refinement import Refinement
+
+INFERENCE_NICE = 10  # the worker thread's nice value above the node's
+
+
+@dataclasses.dataclass(frozen=True)
+class ValueData:
+    table: ValueTable  # over the window × 2 × 2 (v, θ) stencil, or the refined table over the map
+    center: tuple[float, float]
+    v: float
+    theta: float
+    computed: float  # monotonic s
+    map_version: int
+    latency_ms: float
+    grid_info: dict  # origin/resolution/size of the published value grid
+    source: str = "operator"  # or "refined"
+    horizon: float = 0.0  # refined: simulated s of solver behind the table
+
+
+def table_state(state: RobotState, table_theta: float, v_lo: float, v_hi: float) -> np.ndarray:
+    """(x, y, v, θ) to look up in a table whose stencil is centred on heading ``table_theta``: speed clipped
+    to the model's range, heading unwrapped to within π of the centre (the stencil's headings are not
+    wrapped, so −π + 0.05 must read as π + 0.05 beside a table made at π − 0.05, not clamp to its edge)."""
+    s = state.vector(v_lo, v_hi)
+    s[3] = table_theta + float(wrap_angle(s[3] - table_theta))
+    return s
+
+
+def lower_thread_priority(nice: int) -> None:
+    """Give the calling thread a higher nice value (Linux: per thread); a no-op where not allowed."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), os.getpriority(os.PRIO_PROCESS, 0) + nice)
+    except (AttributeError, OSError):
+        pass
+
+
+class ValueWorker:
+    """Owns the value table; ``start``/``stop`` its thread.  ``publish(values, info, map, state)`` is called
+    from the worker after each new table; ``log(level, text)`` reports errors."""
+
+    def __init__(self, vf: Any, maps: MapInput, states: StateInput, cfg: Callable[[], dict],
+                 publish: Callable[[np.ndarray, dict, MapData, RobotState], None],
+                 log: Callable[[str, str], None], refinement: Refinement | None = None) -> None:
+        self.vf, self.maps, self.states, self.cfg, self.publish, self.log = vf, maps, states, cfg, publish, log
+        self.refinement = refinement
+        self.value: ValueData | None = None
+        self.error = ""  # the last inference failure; "" after a success
+        self.inferences = self.errors = 0
+        self._dv, self._dtheta = float(vf.grid.spacings[2]), float(vf.grid.spacings[3])
+        wx, wy = vf.window
+        nx, ny = vf.shape
+        h = min(wx / (nx - 1), wy / (ny - 1))  # square value-grid cells, at least the model's resolution
+        self.grid_shape, self.grid_resolution = (int(round(wx / h)) + 1, int(round(wy / h)) + 1), h
+        self._stop = threading.Event()
+        self._wake = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    # ------------------------------------------------------------------ thread
+    @property
+    def native_id(self) -> int | None:
+        return self._thread.native_id if self._thread is not None else None
+
+    def start(self) -> None:
+        if self._thread is not None and self._thread.is_alive():
+            return
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._loop, name="brt_value_worker", daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """Stop the thread (before the ROS context goes: it publishes)."""
+        self._stop.set()
+        self._wake.set()
+        if self._thread is not None and self._thread.is_alive():
+            self._thread.join(timeout=timeout)
+        self._thread = None
+        if self.refinement is not None:
+            self.refinement.stop()
+
+    def wake(self) -> None:
+        self._wake.set()
+
+    def _loop(self) -> None:
+        lower_thread_priority(INFERENCE_NICE)
+        while not self._stop.is_set():
+            self._wake.wait(1.0 / self.cfg()["inference_rate"])
+            self._wake.clear()
+            if self._stop.is_set():
+                break
+            try:
+                self.step()
+            except Exception as err:  # fail closed until the next successful inference
+                self.errors += 1
+                first = str(err).splitlines()[0] if str(err) else ""
+                self.error = f"inference failed: {type(err).__name__}: {first}"
+                if not self._stop.is_set():
+                    self.log("error", self.error)
+
+    # ------------------------------------------------------------------ work
+    def inflation(self) -> float:
+        """The inflation in metres: ``inflation_radius``, or for -1 half the model grid's x-y cell diagonal."""
+        radius = self.cfg()["inflation_radius"]
+        return float(radius) if radius >= 0 else self.vf.grid.half_cell_diagonal
+
+    def v0(self, m: MapData, points: np.ndarray) -> np.ndarray:
+        """V0 at x-y ``points`` (..., 2): the map's signed distance minus the inflation (float32, m)."""
+        outside = -m.resolution if m.unknown_is_obstacle else None
+        v0 = geometry.sample_raster(m.sd, m.origin, m.resolution, points, outside=outside)
+        return (v0 - self.inflation()).astype(np.float32)
+
+    def step(self) -> None:
+        cfg = self.cfg()
+        problem = self.maps.install(int(cfg["occupied_threshold"]), bool(cfg["unknown_is_obstacle"]))
+        if problem:
+            self.log("warning", f"map rejected: {problem}")
+        m = self.maps.current
+        if m is None:
+            return
+        refined = None
+        if self.refinement is not None:
+            self.refinement.step(m, self.v0, self.log)
+        now = time.monotonic()
+        state, _ = self.states.get(now, cfg["odom_timeout"], m.frame_id)
+        if state is None:
+            return
+        if self.refinement is not None:
+            refined = self.refinement.usable(m, state)
+        if not self._stale(m, state, refined, now, cfg):
+            return
+        start = time.perf_counter()
+        p = self.vf.params
+        center = (state.x, state.y)
+        v = min(max(state.v, p.v_min), p.v_max)
+        if refined is None:
+            table = self.vf.local_table(self.v0(m, self.vf.window_points(center)), center, v, state.theta)
+        else:
+            table = refined.table
+        latency = 1e3 * (time.perf_counter() - start)
+        nodes = self.vf.window_points(center, self.grid_shape)
+        states = np.concatenate([nodes, np.broadcast_to([v, state.theta], (*nodes.shape[:2], 2))], -1)
+        values = table.value(states).astype(np.float32)  # (Nx, Ny)
+        h = self.grid_resolution
+        info = {"frame_id": m.frame_id, "origin": [float(nodes[0, 0, 0] - h / 2), float(nodes[0, 0, 1] - h / 2)],
+                "resolution": h, "width": self.grid_shape[0], "height": self.grid_shape[1], "v": v,
+                "theta": state.theta, "center": list(center), "inflation_radius": self.inflation(),
+                "source": "refined" if refined else "operator"}
+        self.value = ValueData(table, center, v, state.theta, time.monotonic(), m.version, latency, info,
+                               info["source"], refined.horizon if refined else 0.0)
+        self.error = ""
+        self.inferences += 1
+        if not self._stop.is_set():
+            self.publish(values, info, m, state)
+
+    def _stale(self, m: MapData, state: RobotState, refined: Any, now: float, cfg: dict) -> bool:
+        """Whether the table must be recomputed for this map and state."""
+        val = self.value
+        return bool(self.error or val is None or val.map_version != m.version
+                    or (val.table is not refined.table if refined else val.source != "operator")
+                    or math.hypot(state.x - val.center[0], state.y - val.center[1]) > cfg["recenter_distance"]
+                    or abs(state.v - val.v) > 0.5 * self._dv  # the state left the stencil's cell
+                    or abs(float(wrap_angle(state.theta - val.theta))) > 0.5 * self._dtheta
+                    or now - val.computed > 0.5 * cfg["value_timeout"])
+
+    # ------------------------------------------------------------------ the value input
+    def get(self, now: float, state: RobotState, timeout: float) -> tuple[ValueData | None, str]:
+        """The table for ``state``, or why there is none usable."""
+        if self.error:
+            return None, self.error
+        val = self.value
+        if val is None:
+            return None, "no value function yet (waiting for inference)"
+        age = now - val.computed
+        if age > timeout:
+            return None, f"value is {age:.2f} s old (value_timeout {timeout:g} s)"
+        p = self.vf.params
+        s = state.vector(p.v_min, p.v_max)
+        if not bool(val.table.inside(s, axes=(0, 1))):
+            return None, f"state ({s[0]:.2f}, {s[1]:.2f}) outside the value window centred at {val.center}"
+        grid = val.table.grid
+        if not grid.lo[2] - self._dv <= s[2] <= grid.hi[2] + self._dv:
+            return None, f"speed {s[2]:.2f} m/s outside the value table's stencil [{grid.lo[2]:.2f}, {grid.hi[2]:.2f}]"
+        return val, ""
