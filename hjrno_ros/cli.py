@@ -4,8 +4,11 @@
     hjrno generate --experiment NAME [--config FILE] [--out DIR] [--shard K/N] [--workers W]
     hjrno merge --out DIR [SHARD_DIR ...]
     hjrno show --dataset FILE
-    hjrno train | evaluate | calibrate | simulate | demo   (see --help of each)
-    hjrno bench solver|dataset|node [--out benchmarks/results]
+    hjrno train | ensemble | evaluate | calibrate | simulate | demo   (see --help of each)
+    hjrno bench solver|dataset|node [--out DIR]
+
+Results tables (evaluate, simulate, bench) go to ``out/bench`` unless ``--out`` says otherwise;
+``make bench`` writes the committed ones under ``benchmarks/results`` explicitly.
 """
 
 from __future__ import annotations
@@ -358,7 +361,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("evaluate", help="paper-style metrics of a trained model; updates the results table")
     p.add_argument("--model", required=True, help="model stem or .safetensors/.json path (--superres: comma list)")
     p.add_argument("--data", default=None, help="dataset folder (default: the one in the model card)")
-    p.add_argument("--out", default="benchmarks/results", help="results folder")
+    p.add_argument("--out", default="out/bench", help="results folder (default: out/bench)")
     p.add_argument("--train-limit", type=int, default=20, help="training samples scored (default 20)")
     p.add_argument("--figure", action="store_true", help="also write a ground truth | prediction | error PNG")
     p.add_argument("--superres", type=int, default=0, help="zero-shot super-resolution test at this factor")
@@ -419,7 +422,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "many simulated s of the solver warm-started from it (brt_node's refine_horizon), s")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
-    p.add_argument("--out", default="benchmarks/results", help="results folder")
+    p.add_argument("--out", default="out/bench", help="results folder (default: out/bench)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_simulate)
 
@@ -434,7 +437,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("bench", help="run a benchmark and write its results table")
     p.add_argument("what", choices=["solver", "dataset", "node"])
-    p.add_argument("--out", default="benchmarks/results", help="results folder")
+    p.add_argument("--out", default="out/bench", help="results folder (default: out/bench)")
     p.add_argument("--quick", action="store_true", help="smallest case only (smoke run)")
     p.add_argument("--only", default=None, help="dataset bench: comma-separated families (others keep old rows)")
     p.add_argument("--model", default=None, help="node bench: model stem (default: the bundled model)")

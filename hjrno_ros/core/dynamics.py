@@ -35,7 +35,7 @@ def _concrete(values: tuple) -> bool:
 
 @dataclasses.dataclass(frozen=True)
 class CarParams:
-    """Limits of the dynamic Dubins car (DESIGN.md §3 defaults)."""
+    """Limits of the dynamic Dubins car (defaults: docs/design.md, "Dynamics")."""
 
     a_max: float = 1.0  # |u1| ≤ a_max, m/s²
     kappa_max: float = 1.0  # |u2| ≤ κ_max, 1/m

@@ -3,7 +3,7 @@
 Two sources: shapes (exact or densely sampled boundaries, evaluated at any points) and
 rasters (occupancy grids, masks), via scipy's Euclidean distance transform with the boundary
 half a cell between occupied and free cells.  Rasters are indexed ``[ix, iy]`` (x first,
-DESIGN.md §2); cell (ix, iy) has its centre at origin + (ix + ½, iy + ½)·resolution.
+docs/design.md, "Conventions"); cell (ix, iy) has its centre at origin + (ix + ½, iy + ½)·resolution.
 Points are arrays ``(..., 2)`` of (x, y) in metres.
 """
 

@@ -1,6 +1,6 @@
 """State grids: one description for solver, datasets, interpolation and plots.
 
-Axis convention (DESIGN.md §2): a value table is ``V[i0, i1, ...]`` with axes in state order,
+Axis convention (docs/design.md, "Conventions"): a value table is ``V[i0, i1, ...]`` with axes in state order,
 (x, y, v, θ) for the car and (x, y, ψ) for Air3D, exactly like ``hj_reachability``'s
 ``grid.states``.  Non-periodic axes include both end points; periodic axes (angles) cover
 [-π, π) and exclude the end point.

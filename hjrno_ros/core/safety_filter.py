@@ -3,7 +3,7 @@
 Given V and ∇V at the state (x, y, v, θ), three modes:
 
 - ``switch``: pass the nominal command while V > ε; at V ≤ ε replace it by the optimal safe
-  control u* = argmax_u ∇V·f (DESIGN.md §5), mapped to a velocity command.
+  control u* = argmax_u ∇V·f (docs/design.md, "Safety filter"), mapped to a velocity command.
 - ``blend``: mix nominal and safe commands linearly over V ∈ (ε, ε + blend_width] instead of
   switching, which reduces chattering.
 - ``qp``: the smallest change of the nominal control u = (a, κ), in units of the limits, that

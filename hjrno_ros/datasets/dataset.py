@@ -129,7 +129,8 @@ class ExperimentConfig:
         l sampled at grid nodes and interpolated in between overestimates the exact clearance near
         obstacles smaller than a cell or at convex corners (by up to ``grid.half_cell_diagonal``, h/√2
         for cells of side h, since l is 1-Lipschitz): V∞ then comes out > 0 inside such obstacles.
-        Subtracting that makes the interpolated target ≤ the exact clearance everywhere (README, "Inflation")."""
+        Subtracting that makes the interpolated target ≤ the exact clearance everywhere
+        (docs/design.md, "Inflation")."""
         return scenario.target(grid) - np.float32(self.inflation)
 
 

@@ -21,7 +21,7 @@ PARTS = ("calibration", "fresh", "all")
 # "output": the model reads l and r comes off its output, exact for the true operator (V∞[l − r] =
 # V∞[l] − r: the constant passes through the min over time and the sup/inf over controls and
 # disturbances) and in-distribution for a model trained on uninflated data; kept for the comparison
-# in the README (v5 indoors: 61 / 63 / 67 collisions against 27 / 20 / 19 with "input").
+# in docs/results.md (v5 indoors: 61 / 63 / 67 collisions against 27 / 20 / 19 with "input").
 INFLATION_AT = ("input", "output")
 
 

@@ -28,7 +28,7 @@ import dataclasses
 
 import numpy as np
 
-DEFAULT_MARGIN = 0.1  # m: δ, what the ground-truth switch filter needed in closed loop (README, closed loop)
+DEFAULT_MARGIN = 0.1  # m: δ, what the ground-truth switch filter needed in closed loop (docs/results.md, "Closed loop")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -235,7 +235,7 @@ def diagonal_figure(model, card: dict, test, path: str | Path) -> Path:
 
 
 def superresolution(stems: list[str | Path], data: str | Path, factor: int = 3, samples: int = 3,
-                    out: str | Path = "benchmarks/results") -> Path:
+                    out: str | Path = "out/bench") -> Path:
     """Zero-shot super-resolution: models trained at the base grid predict at ``factor`` × the x-y
     resolution; compared with ground truth solved at that resolution, and with the baseline
     "predict at the base grid, then interpolate bilinearly"."""

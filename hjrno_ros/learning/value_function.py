@@ -25,7 +25,7 @@ from hjrno_ros.learning.slices import InputSpec
 
 def channels_last_cnns(model: torch.nn.Module) -> None:
     """Store the CNN members' weights channels-last: oneDNN's faster convolution path on CPU (the bundled
-    ensembles 1.2-1.4× faster, outputs equal up to float rounding: benchmarks/channels_last.py).  Only
+    ensembles 1.2-1.4× faster, outputs equal up to float rounding: docs/results.md, channels-last study).  Only
     CNN modules: the FNO's and TNO's weights are not all 4-D convolution kernels."""
     for module in model.modules():
         if isinstance(module, CNN):

@@ -3,7 +3,7 @@
 The operator predicts V on a robot-centred window in milliseconds, but indoors its turn (the sign of
 ∂V/∂θ near V = 0) disagrees with the truth's on ~12 % of states, and that turn is what makes its filter
 collide (issue 6).  ``solve(..., initial=W)`` from the operator's prediction W corrects it in a fraction
-of a cold solve's time (benchmarks/warm_start.py, 16 indoor rooms: sign agreement 0.875 → 0.919 after
+of a cold solve's time (docs/results.md, warm-start study, 16 indoor rooms: sign agreement 0.875 → 0.919 after
 16 simulated s, 8.7 s of wall time per 10 m room here against ~75 s cold; 0 and 0 collisions in 2002
 closed-loop episodes against the operator's 6 and 13).  For a map that does not change, that is worth
 doing once, in the background, while the operator's windows keep the filter running.
@@ -14,7 +14,7 @@ doing once, in the background, while the operator's windows keep the filter runn
 * :func:`refine`: the warm-started solve in stages of simulated time, each stage's table yielded.
 * :func:`main`: the child process that :class:`BackgroundRefinement` (the node's) starts: it reads a
   request file and writes each stage's table over the same output file, atomically.
-Axis order everywhere: V[ix, iy, iv, iθ] (DESIGN.md).
+Axis order everywhere: V[ix, iy, iv, iθ] (docs/design.md, "Conventions").
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 A :class:`Scenario` is plain data (family, seed, shapes, params) that round-trips through JSON;
 it knows its dynamics, its default grid and its target l on a grid (l > 0 outside obstacles,
-≤ 0 inside; DESIGN.md §2).  :func:`make_scenario` draws one from a family:
+≤ 0 inside; docs/design.md, "Conventions").  :func:`make_scenario` draws one from a family:
 
 =============  ==============================================================================
 ``single``     one random smooth obstacle fully inside the 10 m × 10 m domain

@@ -1,6 +1,6 @@
 """Neural operators that map a V0 slice (plus constant channels) to a V∞ slice.
 
-All models share one interface (DESIGN.md §2 axis order, dim 2 is x, dim 3 is y)::
+All models share one interface (docs/design.md axis order, dim 2 is x, dim 3 is y)::
 
     model = build_model("fno", in_channels=4)
     v_inf = model(x)            # x: [B, in_channels, Nx, Ny] -> [B, 1, Nx, Ny]

@@ -5,10 +5,10 @@ centre, the reflection y → −y; headings move with them), see :func:`hjrno_ro
 A trained operator is only approximately equivariant; averaging its 8 predictions, each made on a
 transformed input and mapped back, gives an operator that is equivariant exactly and whose error
 is the mean of 8 partly independent errors.  Cost: 8 forward passes, stacked into batches of at
-most ``max_stack`` samples where the input is that small (benchmarks/symmetry_stacking.py
-measures the best size on CPU).
+most ``max_stack`` samples where the input is that small (the symmetry-stacking study in
+docs/results.md measured the best size on CPU).
 
-Input layout as everywhere (DESIGN.md §2): [B, C, Nx, Ny], dim 2 is x, dim 3 is y; the heading
+Input layout as everywhere (docs/design.md, "Conventions"): [B, C, Nx, Ny], dim 2 is x, dim 3 is y; the heading
 enters as two constant channels (cos θ, sin θ) whose indices are given.
 """
 

@@ -1,7 +1,7 @@
 """An ensemble: the mean of several trained operators' outputs, one module, one checkpoint.
 
 Members trained apart err partly independently; their mean errs less where it matters for the
-filter (README, closed loop: three indoor CNNs trained with different losses collided 3-5 times
+filter (docs/results.md, closed loop: three indoor CNNs trained with different losses collided 3-5 times
 in 500 episodes where each alone collided 23-69 times).  Cost: one forward pass per member.
 
 Where the members disagree the mean is least trusted: ``pessimism`` k ≥ 0 lowers the output by k
