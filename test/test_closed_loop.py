@@ -1,5 +1,6 @@
 """Closed loop, calibration and the demo: real solves, real torch models, real rclpy over DDS."""
 
+import dataclasses
 import json
 import re
 import shutil
@@ -12,6 +13,8 @@ from conftest import copy_model
 
 from hjrno_ros.core.dynamics import CarParams, car_f, car_optimal_control, car_worst_disturbance
 from hjrno_ros.core.geometry import Disk
+from hjrno_ros.core.grids import GridSpec
+from hjrno_ros.core.model_card import ModelCard
 from hjrno_ros.core.safety_filter import FilterSettings, filter_batch, filter_command, minimal_change
 from hjrno_ros.core.stop_zone import StopZoneSettings, stop_zone_filter
 from hjrno_ros.core.value_table import ValueTable
@@ -213,10 +216,12 @@ def test_calibrate_records_member_frames_in_the_card(trained, tmp_path):
 
 def test_symmetry_averaging_refuses_a_non_square_window(trained):
     _, stem = trained
-    model, card = checkpoint.load_model(stem)
-    card["grid"]["hi"][1] *= 2
+    model, card = checkpoint.load_typed(stem)
+    g = card.grid
+    wide = GridSpec(g.lo, (g.hi[0], 2 * g.hi[1], *g.hi[2:]), g.shape, g.periodic)
+    card = dataclasses.replace(card, grid=wide, window=(wide.hi[0] - wide.lo[0], wide.hi[1] - wide.lo[1]))
     with pytest.raises(ValueError, match="square x-y window"):
-        checkpoint.symmetry_averaged(model, card, checkpoint.paths(stem)[1])
+        checkpoint.symmetry_averaged(model, card)
 
 
 def test_held_out_halves_and_unconverged_worlds(ci_data, trained, tmp_path):
@@ -233,10 +238,10 @@ def test_held_out_halves_and_unconverged_worlds(ci_data, trained, tmp_path):
     card = checkpoint.load_card(model)
     checkpoint.update_card(model, {"dataset": {**card["dataset"], "test_folders": [str(full), str(ci_data)]}})
 
-    calib, fresh = calibration.held_out_halves(5)
+    calib, fresh = held_out.held_out_halves(5)
     assert calib == [0, 1, 2] and fresh == [3, 4]
     with pytest.raises(ValueError, match="at least 2"):
-        calibration.held_out_halves(1)
+        held_out.held_out_halves(1)
     assert len(held_out.load([ci_data], "all")) == 2
     with h5py.File(ci_data / "test.h5", "r+") as f:  # flag one test sample as not converged
         flags = f["converged"][...]
@@ -329,7 +334,9 @@ def test_calibrate_refine_writes_a_margin_for_refined_tables(trained, tmp_path):
     solved = held_out.load(folders, "calibration")
     refined = held_out.refine(solved, held_out.predict(local, solved), 1.0)
     assert eps == calibration.calibrate(refined, [s.value for s in solved], 0.05, 0.05, 2000, 0, 0.1).epsilon
-    assert calibration.refined_epsilon(card, 2.0) == eps and calibration.refined_epsilon(card, 0.5) == 0.15
+    typed = ModelCard.load(local)
+    assert (typed.refine_epsilon, typed.refine_horizon) == (eps, 1.0)
+    assert typed.refined_margin(2.0) == eps and typed.refined_margin(0.5) == 0.15 == typed.margin()
     for horizon, shown in ((1.0, eps), (0.5, 0.15)):
         study = filter_study.run_study(folders, {"tiny": str(local)}, episodes=2,
                                        settings=EpisodeSettings(duration=1.0), refine=horizon,

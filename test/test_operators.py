@@ -165,6 +165,21 @@ def test_bad_config_raises_value_error(kind, config, reason):
         build_model(kind, **config)
 
 
+def test_models_share_one_base_and_the_package_re_exports_it():
+    """The shared base lives in operators.base; the models import it from there, the package imports them."""
+    from hjrno_ros.learning import operators
+    from hjrno_ros.learning.operators import base, ensemble
+
+    assert all(issubclass(cls, base.NeuralOperator) for cls in MODELS.values()) and MODELS is ensemble.MODELS
+    for name in ("NeuralOperator", "PRIORS", "PRIOR_SHARPNESS", "apply_prior", "check_choice", "check_float",
+                 "check_int", "coordinates", "count_parameters"):
+        assert getattr(operators, name) is getattr(base, name), name
+    assert operators.Ensemble is ensemble.Ensemble and count_parameters is base.count_parameters
+    with pytest.raises(ValueError, match="unknown config keys for 'cnn'"):  # members are checked like models
+        build_model("ensemble", in_channels=4, members=[{"kind": "cnn", "config": {"in_channels": 4}},
+                                                        {"kind": "cnn", "config": {"in_channels": 4, "width": 8}}])
+
+
 @pytest.fixture
 def one_thread():
     """Tiny tensors gain nothing from threads; on a busy 2-core machine 2 threads made this 20x slower."""

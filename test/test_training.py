@@ -342,8 +342,7 @@ def test_parametric_diagonal_figure(tmp_path):
     diag = np.array([[s.params["a_max"], s.params["kappa_max"]] for s in test.scenarios])
     assert np.allclose(diag[:, 0], diag[:, 1])  # the test split lies on the diagonal
     model = build_model("fno", in_channels=len(spec.channels), **SMALL).eval()
-    card = {"kind": "fno", "inputs": spec.as_dict()}
-    path = evaluation.diagonal_figure(model, card, test, tmp_path / "diag.png")
+    path = evaluation.diagonal_figure(model, "fno", spec, test, tmp_path / "diag.png")
     assert path.stat().st_size > 10_000
 
 

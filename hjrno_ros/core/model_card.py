@@ -2,7 +2,8 @@
 
 A model on disk is ``<stem>.safetensors`` (tensors only) plus ``<stem>.json`` (this card).  The
 card says what the weights were trained for: architecture (``kind``, ``config``), input channels
-(``inputs``), the value grid and window (``grid``), the car's limits (``dynamics``), the calibrated
+(``inputs``), the value grid and window (``grid``, ``window`` its x-y part), the car's limits (``dynamics``;
+an Air3D model's speeds and turn rates), the calibrated
 margins (``epsilon``; ``refine_epsilon`` from the refined stage ``refine_calibration.horizon_s``),
 metrics, data and the command that reproduces it.  Reading it never imports torch: the node checks a
 card before it pays for loading weights.  Every problem is one ``ValueError`` line naming the field.
@@ -16,7 +17,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from hjrno_ros.core.dynamics import CarParams
+from hjrno_ros.core.dynamics import Air3DParams, CarParams
 from hjrno_ros.core.grids import GridSpec
 
 CARD_FORMAT = "hjrno-model-1"
@@ -24,6 +25,8 @@ REQUIRED = ("format", "kind", "config", "inputs", "grid", "dynamics")
 KINDS = ("fno", "tno", "cnn", "ensemble")
 DYNAMICS_FIELDS = tuple(f.name for f in dataclasses.fields(CarParams))
 DEFAULT_EPSILON = 0.1  # m: a card without a calibrated margin
+# inputs.kind -> (dynamics class, grid axes, periodic axis, its name); the filter takes "car" models only
+FAMILIES = {"car": (CarParams, 4, 3, "(x, y, v, theta)"), "air3d": (Air3DParams, 3, 2, "(x, y, psi)")}
 
 
 def paths(stem: str | Path) -> tuple[Path, Path]:
@@ -53,13 +56,29 @@ def load_card(stem: str | Path) -> dict:
     return card
 
 
-def _field(d: dict, name: str, kind: type | tuple, where: str) -> Any:
+def _field(d: dict, name: str, kind: type | tuple, where: str, prefix: str = "") -> Any:
+    """``d[name]`` if it has type ``kind``; else ValueError naming ``prefix + name``."""
     if name not in d:
-        raise ValueError(f"{where}: field '{name}' is missing")
+        raise ValueError(f"{where}: field '{prefix}{name}' is missing")
     value = d[name]
     if not isinstance(value, kind) or isinstance(value, bool) and kind is not bool:
-        raise ValueError(f"{where}: field '{name}' has the wrong type ({type(value).__name__})")
+        raise ValueError(f"{where}: field '{prefix}{name}' has the wrong type ({type(value).__name__})")
     return value
+
+
+def _optional(d: dict, name: str, kind: type | tuple, where: str, default: Any) -> Any:
+    """``d[name]`` if it has type ``kind``, ``default`` if absent or null; else ValueError naming it."""
+    if d.get(name) is None:
+        return default
+    return _field(d, name, kind, where)
+
+
+def _numbers(values: Any, name: str, where: str, kind: type | tuple = (int, float)) -> list:
+    if not isinstance(values, list) or not values or any(
+            isinstance(v, bool) or not isinstance(v, kind) for v in values):
+        raise ValueError(f"{where}: field '{name}' must be a non-empty list of {getattr(kind, '__name__', 'number')}s, "
+                         f"got {values!r}")
+    return values
 
 
 def _margin(value: Any, name: str, where: str) -> float | None:
@@ -68,6 +87,57 @@ def _margin(value: Any, name: str, where: str) -> float | None:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value < 0:
         raise ValueError(f"{where}: field '{name}' must be a finite number >= 0 or null, got {value!r}")
     return float(value)
+
+
+def _refine_stage(d: dict, where: str = "<card>") -> tuple[float, float] | None:
+    """(``refine_epsilon``, the refined stage ``refine_calibration.horizon_s`` it was calibrated at) of a card's
+    dict, or None without both: a refine_epsilon only holds from the stage it was calibrated at."""
+    eps = _margin(d.get("refine_epsilon"), "refine_epsilon", where)
+    refine = d.get("refine_calibration")
+    horizon = refine.get("horizon_s") if isinstance(refine, dict) else None
+    if eps is None or isinstance(horizon, bool) or not isinstance(horizon, int | float):
+        return None
+    return eps, float(horizon)
+
+
+def _grid(d: dict, where: str, family: str) -> GridSpec:
+    grid_d = _field(d, "grid", dict, where)
+    for name in ("lo", "hi", "shape"):
+        _field(grid_d, name, list, where, "grid.")
+        _numbers(grid_d[name], f"grid.{name}", where, int if name == "shape" else (int, float))
+    try:
+        grid = GridSpec.from_dict(grid_d)
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"{where}: field 'grid' is invalid ({err})") from None
+    _, ndim, periodic, axes = FAMILIES[family]
+    if grid.ndim != ndim or grid.periodic != (periodic,):
+        raise ValueError(f"{where}: field 'grid' must be an {axes} grid with axis {periodic} periodic for a "
+                         f"{family} model, got shape {grid.shape}, periodic {grid.periodic}")
+    window = d.get("window")
+    if window is not None:  # the x-y part of the grid, written next to it: they must agree
+        if not isinstance(window, dict):
+            raise ValueError(f"{where}: field 'window' has the wrong type ({type(window).__name__})")
+        for name in ("lo", "hi", "shape"):
+            value = _field(window, name, list, where, "window.")
+            expect = getattr(grid, name)[:2]
+            if len(value) != 2 or any(isinstance(v, bool) or not isinstance(v, int | float) or abs(v - e) > 1e-9
+                                      for v, e in zip(value, expect, strict=False)):
+                raise ValueError(f"{where}: field 'window.{name}' is {value!r}, the grid's x-y {name} is "
+                                 f"{list(expect)}")
+    return grid
+
+
+def _dynamics(d: dict, where: str, family: str) -> CarParams | Air3DParams:
+    cls = FAMILIES[family][0]
+    dyn = _field(d, "dynamics", dict, where)
+    for f in dataclasses.fields(cls):
+        value = _field(dyn, f.name, (int, float), where, "dynamics.")
+        if not math.isfinite(value):
+            raise ValueError(f"{where}: field 'dynamics.{f.name}' must be finite, got {value!r}")
+    try:
+        return cls(**{f.name: float(dyn[f.name]) for f in dataclasses.fields(cls)})
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"{where}: field 'dynamics' is invalid ({err})") from None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,7 +149,7 @@ class ModelCard:
     inputs: dict
     grid: GridSpec  # the value grid (x, y, v, θ) the model predicts on
     window: tuple[float, float]  # x-y extent of the grid, m
-    dynamics: CarParams
+    dynamics: CarParams | Air3DParams  # CarParams for a car model (inputs.kind "car"), the filter's only kind
     epsilon: float | None  # calibrated margin for the operator's value, m
     refine_epsilon: float | None  # calibrated margin for solver-refined tables, m
     refine_horizon: float | None  # simulated s of refinement from which refine_epsilon holds
@@ -90,6 +160,8 @@ class ModelCard:
     command: str | None
     data: dict
     source: Path
+    parameters: int | None = None  # trainable real scalars (count_parameters), as training recorded them
+    training: dict = dataclasses.field(default_factory=dict)  # training facts: wall_s, peak_rss_mb, history, ...
 
     @classmethod
     def from_dict(cls, d: dict, source: str | Path = "<card>") -> ModelCard:
@@ -102,45 +174,49 @@ class ModelCard:
             raise ValueError(f"{where}: field 'kind' must be one of {KINDS}, got {kind!r}")
         config = _field(d, "config", dict, where)
         inputs = _field(d, "inputs", dict, where)
-        _field(inputs, "channels", list, f"{where} inputs")
-        grid_d = _field(d, "grid", dict, where)
-        for name in ("lo", "hi", "shape"):
-            _field(grid_d, name, list, f"{where} grid")
-        try:
-            grid = GridSpec.from_dict(grid_d)
-        except (ValueError, TypeError) as err:
-            raise ValueError(f"{where}: field 'grid' is invalid ({err})") from None
-        if grid.ndim != 4 or grid.periodic != (3,):
-            raise ValueError(f"{where}: field 'grid' must be an (x, y, v, theta) grid with theta periodic, got "
-                             f"shape {grid.shape}, periodic {grid.periodic}")
-        dyn = _field(d, "dynamics", dict, where)
-        missing = [k for k in DYNAMICS_FIELDS if k not in dyn]
-        if missing:
-            raise ValueError(f"{where}: field 'dynamics.{missing[0]}' is missing")
-        try:
-            dynamics = CarParams(**{k: float(dyn[k]) for k in DYNAMICS_FIELDS})
-        except (ValueError, TypeError) as err:
-            raise ValueError(f"{where}: field 'dynamics' is invalid ({err})") from None
-        if abs(grid.lo[2] - dynamics.v_min) > 1e-9 or abs(grid.hi[2] - dynamics.v_max) > 1e-9:
-            raise ValueError(f"{where}: field 'grid' speed axis [{grid.lo[2]:g}, {grid.hi[2]:g}] differs from "
-                             f"dynamics [v_min, v_max] = [{dynamics.v_min:g}, {dynamics.v_max:g}]")
-        refine = d.get("refine_calibration") or {}
-        refine_eps = _margin(d.get("refine_epsilon"), "refine_epsilon", where)
-        horizon = refine.get("horizon_s") if isinstance(refine, dict) else None
-        if refine_eps is not None and not isinstance(horizon, int | float):
-            refine_eps = None  # a refine_epsilon is only usable with the stage it was calibrated at
-        frames = d.get("member_frames")
+        family = _field(inputs, "kind", str, where, "inputs.")
+        if family not in FAMILIES:
+            raise ValueError(f"{where}: field 'inputs.kind' must be one of {tuple(FAMILIES)}, got {family!r}")
+        channels = _field(inputs, "channels", list, where, "inputs.")
+        if not channels or not all(isinstance(c, str) for c in channels):
+            raise ValueError(f"{where}: field 'inputs.channels' must be a non-empty list of names, got {channels!r}")
+        in_channels = _field(config, "in_channels", int, where, "config.")
+        if in_channels != len(channels):
+            raise ValueError(f"{where}: field 'config.in_channels' is {in_channels}, but inputs.channels lists "
+                             f"{len(channels)}: {channels}")
+        grid = _grid(d, where, family)
+        dynamics = _dynamics(d, where, family)
+        if family == "car":
+            if abs(grid.lo[2] - dynamics.v_min) > 1e-9 or abs(grid.hi[2] - dynamics.v_max) > 1e-9:
+                raise ValueError(f"{where}: field 'grid' speed axis [{grid.lo[2]:g}, {grid.hi[2]:g}] differs from "
+                                 f"dynamics [v_min, v_max] = [{dynamics.v_min:g}, {dynamics.v_max:g}]")
+            v_range = inputs.get("v_range")
+            if v_range is not None and (len(_numbers(v_range, "inputs.v_range", where)) != 2 or any(
+                    abs(a - b) > 1e-9 for a, b in zip(v_range, (grid.lo[2], grid.hi[2]), strict=True))):
+                raise ValueError(f"{where}: field 'inputs.v_range' {v_range!r} differs from the grid's speed axis "
+                                 f"[{grid.lo[2]:g}, {grid.hi[2]:g}]")
+        stage = _refine_stage(d, where)
+        frames = _optional(d, "member_frames", list, where, None)
+        command = _optional(d, "command", str, where, None)
         return cls(kind=kind, config=config, inputs=inputs, grid=grid,
                    window=(grid.hi[0] - grid.lo[0], grid.hi[1] - grid.lo[1]), dynamics=dynamics,
-                   epsilon=_margin(d.get("epsilon"), "epsilon", where), refine_epsilon=refine_eps,
-                   refine_horizon=float(horizon) if refine_eps is not None else None,
-                   symmetry_average=bool(d.get("symmetry_average", False)),
-                   member_frames=frames if frames else None, metrics=dict(d.get("metrics") or {}),
-                   dataset=dict(d.get("dataset") or {}), command=d.get("command"), data=d, source=Path(source))
+                   epsilon=_margin(d.get("epsilon"), "epsilon", where),
+                   refine_epsilon=stage[0] if stage else None, refine_horizon=stage[1] if stage else None,
+                   symmetry_average=_optional(d, "symmetry_average", bool, where, False),
+                   member_frames=frames if frames else None,
+                   metrics=dict(_optional(d, "metrics", dict, where, {})),
+                   dataset=dict(_optional(d, "dataset", dict, where, {})), command=command, data=d,
+                   source=Path(source), parameters=_optional(d, "parameters", int, where, None),
+                   training=dict(_optional(d, "training", dict, where, {})))
 
     @classmethod
     def load(cls, stem: str | Path) -> ModelCard:
         return cls.from_dict(load_card(stem), paths(stem)[1])
+
+    @property
+    def family(self) -> str:
+        """``inputs.kind``: "car" (x, y, v, θ) or "air3d" (x, y, ψ)."""
+        return self.inputs["kind"]
 
     def margin(self) -> float:
         """ε for the operator's value: the calibrated one, else :data:`DEFAULT_EPSILON`."""

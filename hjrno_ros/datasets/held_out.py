@@ -1,7 +1,7 @@
 """Held-out solved scenarios (dataset test splits) and a model's value tables on them.
 
 Calibration and the closed-loop study both need scenarios the model never trained on, with
-their ground truth.  A test split is cut in two (``calibration.held_out_halves``): the first half
+their ground truth.  A test split is cut in two (:func:`held_out_halves`): the first half
 calibrates ε, the second ("fresh") half tests the calibrated model, in numbers and in closed loop.
 """
 
@@ -53,10 +53,16 @@ def load(folders: list[str | Path], part: str = "fresh", unconverged: bool = Fal
     return out
 
 
+def held_out_halves(n: int) -> tuple[list[int], list[int]]:
+    """Indices of a test split as (calibration, fresh test): the first ⌈n/2⌉ calibrate, the rest test."""
+    if n < 2:
+        raise ValueError(f"calibration needs at least 2 held-out scenarios (one to calibrate, one to test), got {n}")
+    half = (n + 1) // 2
+    return list(range(half)), list(range(half, n))
+
+
 def _half(folder: str | Path, n: int, part: str) -> list[int]:
     """The calibration or fresh half of a test split of ``n`` scenarios; ValueError naming the folder."""
-    from hjrno_ros.learning.calibration import held_out_halves
-
     try:
         calib, fresh = held_out_halves(n)
     except ValueError as err:  # name the folder: the user passes several, or the card's
@@ -95,8 +101,8 @@ def predict(stem: str | Path, solved: list[Solved], average: bool | None = None,
 
     if inflation_at not in INFLATION_AT:
         raise ValueError(f"inflation_at must be one of {INFLATION_AT}, got {inflation_at!r}")
-    model, card = checkpoint.load_model(stem, average=average, frames=frames)
-    spec = InputSpec.from_dict(card["inputs"])
+    model, card = checkpoint.load_typed(stem, average=average, frames=frames)
+    spec = InputSpec.from_dict(card.inputs)
     if spec.kind != "car":
         raise ValueError(f"{stem}: a car model is needed, this one is {spec.kind!r}")
     with torch.no_grad():

@@ -28,6 +28,8 @@ import dataclasses
 
 import numpy as np
 
+from hjrno_ros.core.model_card import ModelCard
+
 DEFAULT_MARGIN = 0.1  # m: δ, what the ground-truth switch filter needed in closed loop (docs/results.md, "Closed loop")
 
 
@@ -45,14 +47,6 @@ class Calibration:
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
-
-
-def held_out_halves(n: int) -> tuple[list[int], list[int]]:
-    """Indices of a test split as (calibration, fresh test): the first ⌈n/2⌉ calibrate, the rest test."""
-    if n < 2:
-        raise ValueError(f"calibration needs at least 2 held-out scenarios (one to calibrate, one to test), got {n}")
-    half = (n + 1) // 2
-    return list(range(half)), list(range(half, n))
 
 
 def conformal_rank(n: int, alpha: float, beta: float) -> int:
@@ -123,22 +117,6 @@ def error_rates(pred: list[np.ndarray], truth: list[np.ndarray], epsilon: float)
             "conservative_rate": mean(cons)}
 
 
-def refined_margin(card: dict) -> tuple[float, float] | None:
-    """(refine_epsilon, the refined stage in simulated s it was calibrated at) from a card, or None."""
-    entry = card.get("refine_calibration")
-    if not entry or card.get("refine_epsilon") is None:
-        return None
-    return float(card["refine_epsilon"]), float(entry["horizon_s"])
-
-
-def refined_epsilon(card: dict, horizon: float) -> float | None:
-    """The filter's ε for a table refined by ``horizon`` simulated s: the card's ``refine_epsilon`` if it was
-    calibrated at ``horizon`` or less, else the card's ε.  A later stage misses no state the calibrated one
-    caught: the tube takes a min at every solver step, so refinement only lowers the table."""
-    margin = refined_margin(card)
-    return margin[0] if margin and horizon >= margin[1] else card.get("epsilon")
-
-
 def calibrate_model(stem, folders: list, alpha: float, beta: float, n: int, seed: int = 0,
                     margin: float = DEFAULT_MARGIN, write: bool = True, unconverged: bool = False,
                     average: bool | None = None, frames: list | None = None, refine: float = 0.0) -> dict:
@@ -155,12 +133,11 @@ def calibrate_model(stem, folders: list, alpha: float, beta: float, n: int, seed
 
     if not (np.isfinite(refine) and refine >= 0):
         raise ValueError(f"refine must be finite and >= 0 (simulated s), got {refine}")
+    card = ModelCard.load(stem)
     calib, fresh = (held_out.load(folders, part, unconverged) for part in ("calibration", "fresh"))
-    card = checkpoint.load_card(stem)
-    averaged = bool(card.get("symmetry_average", False) if average is None else average)
-    frames = card.get("member_frames") if frames is None else frames
-    if refine > 0 and write and (averaged, frames or None) != (bool(card.get("symmetry_average", False)),
-                                                               card.get("member_frames")):
+    averaged = card.symmetry_average if average is None else bool(average)
+    frames = card.member_frames if frames is None else frames
+    if refine > 0 and write and (averaged, frames or None) != (card.symmetry_average, card.member_frames):
         raise ValueError("calibrating refined tables writes no model settings: leave --symmetry-average and "
                          "--member-frames at the card's")
     pred = held_out.predict(stem, calib + fresh, averaged, frames=frames or [])  # [] = none, not the card's

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from hjrno_ros.core.model_card import ModelCard
 from hjrno_ros.datasets.dataset import load_split
 from hjrno_ros.learning import checkpoint
 from hjrno_ros.learning.slices import InputSpec
@@ -99,21 +100,23 @@ def evaluate(stem: str | Path, data: str | Path | None = None, train_limit: int 
     """Results rows of a trained model, one per dataset folder (its card's, or ``data``); with
     ``figures``, also a ground truth | prediction | error PNG per folder there.  Samples whose solve
     missed the tolerance are left out unless ``unconverged``."""
-    model, card = checkpoint.load_model(stem)
+    model, card = checkpoint.load_typed(stem)
     folders = [Path(d) for d in (str(data).split(",") if data else checkpoint.folders_with_test_split(card))]
     return [_evaluate_folder(model, card, Path(stem), folder, train_limit, figures, unconverged) for folder in folders]
 
 
-def _evaluate_folder(model, card: dict, stem: Path, data: Path, train_limit: int, figures, unconverged: bool) -> dict:
-    spec = InputSpec.from_dict(card["inputs"])
+def _evaluate_folder(model, card: ModelCard, stem: Path, data: Path, train_limit: int, figures,
+                     unconverged: bool) -> dict:
+    spec = InputSpec.from_dict(card.inputs)
     train, test = (load_split(data / f"{s}.h5", converged_only=not unconverged) for s in ("train", "test"))
     if not test.scenarios:
         raise ValueError(f"{data}/test.h5: no converged test samples to score (--allow-unconverged scores the flagged)")
     flagged = int((~train.converged).sum() + (~test.converged).sum())
     if figures:
-        error_figure(model, card, test, Path(figures) / f"{test.config.name}_{checkpoint.paths(stem)[0].stem}.png")
+        error_figure(model, card.kind, spec, test,
+                     Path(figures) / f"{test.config.name}_{checkpoint.paths(stem)[0].stem}.png")
         if test.config.family == "parametric":
-            diagonal_figure(model, card, test,
+            diagonal_figure(model, card.kind, spec, test,
                             Path(figures) / f"{test.config.name}_{checkpoint.paths(stem)[0].stem}_diagonal.png")
     tr, te = split_metrics(model, spec, train, train_limit), split_metrics(model, spec, test)
     solve_s = float(np.mean([r["wall_time"] for r in train.reports + test.reports]))
@@ -121,7 +124,7 @@ def _evaluate_folder(model, card: dict, stem: Path, data: Path, train_limit: int
     weights, _ = checkpoint.paths(stem)
     return {
         "experiment": test.config.name,
-        "model": f"{card['kind']} ({checkpoint.paths(stem)[0].stem}{', D4-averaged' if averaged(model) else ''})",
+        "model": f"{card.kind} ({checkpoint.paths(stem)[0].stem}{', D4-averaged' if averaged(model) else ''})",
         "grid": "x".join(map(str, test.grid.shape)),
         "n_train/n_test": f"{len(train.scenarios)}/{len(test.scenarios)}"
                           + (f" ({flagged} unconverged)" if flagged else ""),
@@ -131,9 +134,9 @@ def _evaluate_folder(model, card: dict, stem: Path, data: Path, train_limit: int
         "test_false_safe": round(te["false_safe"], 4),
         **({"test_rel_l2_converged": _rounded(te["rel_l2_converged"])} if flagged else {}),
         "dataset_time_h": round(float(train.attrs["solve_wall_s"] + test.attrs["solve_wall_s"]) / 3600, 2),
-        "train_time_min": round(card["training"].get("wall_s", float("nan")) / 60, 1),
-        "params_M": round(card["parameters"] / 1e6, 3),
-        "train_peak_MB": card["training"].get("peak_rss_mb"),
+        "train_time_min": round(card.training.get("wall_s", float("nan")) / 60, 1),
+        "params_M": round(card.parameters / 1e6, 3) if card.parameters is not None else None,
+        "train_peak_MB": card.training.get("peak_rss_mb"),
         "data_MB": round(sum((data / f"{s}.h5").stat().st_size for s in ("train", "test")) / 1e6, 1),
         "checkpoint_MB": round(weights.stat().st_size / 1e6, 2),
         "solve_s": round(solve_s, 1),
@@ -179,19 +182,18 @@ def record(row: dict, out: str | Path) -> Path:
     return out / "evaluation.md"
 
 
-def error_figure(model, card: dict, test, path: str | Path) -> Path:
+def error_figure(model, kind: str, spec: InputSpec, test, path: str | Path) -> Path:
     """Ground truth | prediction | error for the first test sample: the car at mid speed and θ = 0,
     Air3D at relative heading ψ = 0 (the middle of each axis)."""
     from hjrno_ros.studies.plotting import plt, save_figure
 
-    spec = InputSpec.from_dict(card["inputs"])
     pred = predict_table(model, spec, test.grid, test.target[0], sample_params(spec, test.scenarios[0]))
     mid = (test.grid.shape[3] // 2,) if test.grid.ndim == 4 else ()
     idx = (slice(None), slice(None), test.grid.shape[2] // 2, *mid)
     x, y = test.grid.axis(0), test.grid.axis(1)
     fig, axes = plt.subplots(1, 3, figsize=(11, 3.4))
     for ax, data_, title in zip(axes, (test.value[0][idx], pred[idx], pred[idx] - test.value[0][idx]),
-                                ("ground truth V∞", f"{card['kind'].upper()} prediction", "error"), strict=True):
+                                ("ground truth V∞", f"{kind.upper()} prediction", "error"), strict=True):
         limit = float(np.abs(data_).max()) if title == "error" else None
         im = ax.pcolormesh(x, y, data_.T, shading="auto", cmap="RdBu" if limit else "viridis",
                            vmin=-limit if limit else None, vmax=limit)
@@ -204,12 +206,11 @@ def error_figure(model, card: dict, test, path: str | Path) -> Path:
     return save_figure(fig, path, f"{test.config.name}: test sample 0, {where}")
 
 
-def diagonal_figure(model, card: dict, test, path: str | Path) -> Path:
+def diagonal_figure(model, kind: str, spec: InputSpec, test, path: str | Path) -> Path:
     """The paper's Fig. 4: test error along the (a_max, κ_max) diagonal (trained on a lattice), and the
     ground-truth vs predicted zero level at the lowest, middle and highest limits (v_max, θ = 0)."""
     from hjrno_ros.studies.plotting import plt, save_figure
 
-    spec = InputSpec.from_dict(card["inputs"])
     limits = np.array([[sc.params["a_max"], sc.params["kappa_max"]] for sc in test.scenarios])
     order = np.argsort(limits[:, 0])
     preds = [predict_table(model, spec, test.grid, test.target[i], sample_params(spec, test.scenarios[i]))
@@ -231,7 +232,7 @@ def diagonal_figure(model, card: dict, test, path: str | Path) -> Path:
         ax.set_title(f"a_max {limits[i, 0]:.2f}, κ_max {limits[i, 1]:.2f}: rel L2 {errors[k]:.4f}", fontsize=9)
         ax.set_aspect("equal")
     return save_figure(fig, path, f"{test.config.name}: BRT at v_max, θ = 0 (black: ground truth, red: "
-                       f"{card['kind'].upper()})")
+                       f"{kind.upper()})")
 
 
 def superresolution(stems: list[str | Path], data: str | Path, factor: int = 3, samples: int = 3,
@@ -253,8 +254,8 @@ def superresolution(stems: list[str | Path], data: str | Path, factor: int = 3, 
         truths.append((scenario, target, value, report.wall_time))
     rows = []
     for stem in stems:
-        model, card = checkpoint.load_model(stem)
-        spec = InputSpec.from_dict(card["inputs"])
+        model, card = checkpoint.load_typed(stem)
+        spec = InputSpec.from_dict(card.inputs)
         direct, interp = [], []
         for scenario, target, value, _ in truths:
             params = sample_params(spec, scenario)
@@ -265,7 +266,7 @@ def superresolution(stems: list[str | Path], data: str | Path, factor: int = 3, 
             up_table = up(pts.reshape(-1, 2)).reshape(fine.shape)
             direct.append(table_metrics(high, value))
             interp.append(table_metrics(up_table.astype(np.float32), value))
-        rows.append({"model": f"{card['kind']} ({checkpoint.paths(stem)[0].stem})",
+        rows.append({"model": f"{card.kind} ({checkpoint.paths(stem)[0].stem})",
                      "train_grid": "x".join(map(str, base.shape)), "eval_grid": "x".join(map(str, fine.shape)),
                      "samples": len(truths),
                      "zero_shot_rel_l2": round(float(np.mean([m["rel_l2"] for m in direct])), 4),

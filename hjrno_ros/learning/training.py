@@ -125,8 +125,8 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
                                                 pct_start=0.1)
     card = _card(cfg, model, spec, folders, tested, train_splits, test_splits, command)
     if base_card is not None:
-        card["training"]["init"] = {"model": cfg.init, "command": base_card.get("command"),
-                                    "wall_s": base_card.get("training", {}).get("wall_s")}
+        card["training"]["init"] = {"model": cfg.init, "command": base_card.command,
+                                    "wall_s": base_card.training.get("wall_s")}
     start_epoch, history = _resume(cfg, model, opt, sched, steps_per_epoch)
     width = cfg.level_set_width / spec.value_scale  # the loss weight's width in normalised target units
     start = time.perf_counter()
@@ -183,15 +183,15 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
     return weights
 
 
-def _initial_weights(stem: str, model: torch.nn.Module, spec) -> dict:
+def _initial_weights(stem: str, model: torch.nn.Module, spec) -> checkpoint.ModelCard:
     """Load a trained model's weights into ``model`` (same architecture and inputs); its card."""
-    base, card = checkpoint.load_model(stem, average=False)
-    if card["kind"] != model.kind or card["config"] != _as_stored(model.config):
-        raise ValueError(f"--init {stem} is a {card['kind']} with config {card['config']}; pass the same --model and "
+    base, card = checkpoint.load_typed(stem, average=False)
+    if card.kind != model.kind or card.config != _as_stored(model.config):
+        raise ValueError(f"--init {stem} is a {card.kind} with config {card.config}; pass the same --model and "
                          f"--model-config (got {model.kind} {model.config})")
-    if card["inputs"] != _as_stored(spec.as_dict()):
-        raise ValueError(f"--init {stem} was trained on other inputs ({card['inputs']['channels']}, window scale "
-                         f"{card['inputs']['value_scale']} m) than these datasets give")
+    if card.inputs != _as_stored(spec.as_dict()):
+        raise ValueError(f"--init {stem} was trained on other inputs ({card.inputs['channels']}, window scale "
+                         f"{card.inputs['value_scale']} m) than these datasets give")
     model.load_state_dict(base.state_dict())
     return card
 

@@ -37,21 +37,21 @@ class LearnedValueFunction:
         device = device or ("cuda" if torch.cuda.is_available() else "cpu")
         if threads:
             torch.set_num_threads(threads)
-        self.model, self.card = checkpoint.load_model(stem, device)
+        self.model, self.card = checkpoint.load_typed(stem, device)
         self.device = torch.device(device)
         if self.device.type == "cpu":
             channels_last_cnns(self.model)
-        self.spec = InputSpec.from_dict(self.card["inputs"])
+        self.spec = InputSpec.from_dict(self.card.inputs)
         if self.spec.kind != "car":
             raise ValueError(f"{stem}: the filter needs a car model, this one is {self.spec.kind!r}")
-        self.grid = GridSpec.from_dict(self.card["grid"])
-        self.params = CarParams(**self.card["dynamics"])
-        self.epsilon = self.card.get("epsilon")
+        self.grid: GridSpec = self.card.grid
+        self.params: CarParams = self.card.dynamics
+        self.epsilon = self.card.epsilon  # None when uncalibrated; the filter's default: self.card.margin()
 
     @property
     def window(self) -> tuple[float, float]:
         """Physical window size (x, y) in metres."""
-        return self.grid.hi[0] - self.grid.lo[0], self.grid.hi[1] - self.grid.lo[1]
+        return self.card.window
 
     @property
     def shape(self) -> tuple[int, int]:

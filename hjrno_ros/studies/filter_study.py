@@ -15,11 +15,12 @@ import json
 import time
 from pathlib import Path
 
+from hjrno_ros.core.model_card import ModelCard
 from hjrno_ros.core.safety_filter import MODES, FilterSettings, filter_batch
 from hjrno_ros.core.stop_zone import StopZoneSettings, stop_zone_filter
 from hjrno_ros.core.value_table import ValueTable
 from hjrno_ros.datasets import held_out
-from hjrno_ros.learning.calibration import DEFAULT_MARGIN, refined_epsilon
+from hjrno_ros.learning.calibration import DEFAULT_MARGIN
 from hjrno_ros.studies import closed_loop
 from hjrno_ros.studies.closed_loop import EpisodeSettings, World
 
@@ -37,13 +38,13 @@ class FilterChoice:
     epsilon: float = 0.0
 
 
-def default_filters(models: dict[str, dict], truth_epsilon: float) -> list[FilterChoice]:
-    """none, stop_zone, ground truth (switch, blend, qp with ε = δ) and per model: its card's calibrated
-    ε (switch, blend, qp) and ε = δ alone ("no model margin": what calibration adds, measured)."""
+def default_filters(models: dict[str, float | None], truth_epsilon: float) -> list[FilterChoice]:
+    """none, stop_zone, ground truth (switch, blend, qp with ε = δ) and per model (label -> its card's calibrated
+    ε, None if uncalibrated): that ε (switch, blend, qp) and ε = δ alone ("no model margin": what calibration
+    adds, measured)."""
     rows = [FilterChoice("none", "none"), FilterChoice("stop_zone", "stop_zone")]
     rows += [FilterChoice(_name(TRUTH, mode), "hj", TRUTH, mode, truth_epsilon) for mode in MODES]
-    for label, card in models.items():
-        eps = card.get("epsilon")
+    for label, eps in models.items():
         if eps is not None:
             rows += [FilterChoice(f"{_name(label, mode)} (eps={eps:.3f})", "hj", label, mode, float(eps))
                      for mode in MODES]
@@ -80,9 +81,7 @@ def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, s
     (``inflation_at``: how the learned maps meet the datasets' inflation, ``held_out.INFLATION_AT``).
     ``refine`` > 0 adds per model a filter on its table refined by ``refine`` simulated s of the solver
     warm-started from it (what brt_node's ``refine_horizon`` does), with the card's ε for that table
-    (``calibration.refined_epsilon``)."""
-    from hjrno_ros.learning import checkpoint
-
+    (:meth:`ModelCard.refined_margin`)."""
     solved = held_out.load(folders, part, unconverged)
     if not solved:
         raise ValueError(f"no converged held-out scenarios in {folders} ({part})")
@@ -94,11 +93,11 @@ def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, s
     solved = [s for s, ok in zip(solved, usable, strict=True) if ok]
     if not solved:
         raise ValueError(f"no held-out world in {folders} ({part}) has a safe start")
-    cards = {label: checkpoint.load_card(stem) for label, stem in models.items()}
+    cards = {label: ModelCard.load(stem) for label, stem in models.items()}
+    epsilons = {label: card.epsilon for label, card in cards.items()}  # calibrated only: no row for an uncalibrated ε
     if refine > 0:
-        cards.update({refined_label(label, refine): {**card, "epsilon": refined_epsilon(card, refine)}
-                      for label, card in list(cards.items())})
-    choices = default_filters(cards, truth_epsilon)
+        epsilons.update({refined_label(label, refine): card.refined_margin(refine) for label, card in cards.items()})
+    choices = default_filters(epsilons, truth_epsilon)
     if filters:
         choices = [c for c in choices if any(c.name.startswith(f) for f in filters)]
         if not choices:

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hjrno_ros.core.dynamics import CarParams
 from hjrno_ros.core.geometry import rasterize, union_sdf
+from hjrno_ros.core.model_card import ModelCard
 from hjrno_ros.truth.scenarios import random_smooth_shape
 
 MAP_SIZE = 24.0  # m, square, centred on the origin
@@ -61,15 +61,14 @@ def demo_world(seed: int = 0, obstacles: int = 6) -> tuple[list, np.ndarray, np.
 def run(out: Path, seconds: float = 40.0, seed: int = 0, model: str | None = None, use_filter: bool = True,
         gif: bool = True) -> int:
     """Run the demo; print and write the summary and figures; 1 on collision, else 0."""
-    from hjrno_ros.learning import checkpoint
-    from hjrno_ros.ros.node import resolve_model
+    from hjrno_ros.ros.model_files import resolve_model
     from hjrno_ros.ros.sim_robot import drive
     from hjrno_ros.tools.node_process import brt_node_process, free_domain
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     stem = resolve_model(model or "")
-    params = CarParams(**checkpoint.load_card(stem)["dynamics"])
+    params = ModelCard.load(stem).dynamics
     shapes, occupancy, start, goals = demo_world(seed)
     domain = free_domain()
     robot = {"shapes": shapes, "params": params, "occupancy": occupancy, "resolution": RESOLUTION,

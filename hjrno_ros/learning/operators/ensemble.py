@@ -21,7 +21,12 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from hjrno_ros.learning.operators import check_int
+from hjrno_ros.learning.operators.base import NeuralOperator, check_int, construct
+from hjrno_ros.learning.operators.cnn import CNN
+from hjrno_ros.learning.operators.fno import FNO
+from hjrno_ros.learning.operators.tno import TNO
+
+MODELS: dict[str, type[NeuralOperator]] = {"fno": FNO, "tno": TNO, "cnn": CNN}  # the single operators: members
 
 
 class Ensemble(nn.Module):
@@ -31,8 +36,6 @@ class Ensemble(nn.Module):
     kind = "ensemble"
 
     def __init__(self, *, in_channels: int, members: list[dict[str, Any]], pessimism: float = 0.0) -> None:
-        from hjrno_ros.learning.operators import MODELS, build_model
-
         super().__init__()
         in_channels = check_int("in_channels", in_channels, 1)
         if not isinstance(members, list) or len(members) < 2:
@@ -47,7 +50,7 @@ class Ensemble(nn.Module):
         if isinstance(pessimism, bool) or not isinstance(pessimism, int | float) or not (
                 math.isfinite(pessimism) and pessimism >= 0):
             raise ValueError(f"ensemble pessimism must be a finite number >= 0, got {pessimism!r}")
-        self.members = nn.ModuleList(build_model(m["kind"], **m["config"]) for m in members)
+        self.members = nn.ModuleList(construct(MODELS, m["kind"], m["config"]) for m in members)
         self.in_channels, self.pessimism = in_channels, float(pessimism)
         self.config: dict[str, Any] = {"in_channels": in_channels, "pessimism": self.pessimism,
                                        "members": [{"kind": m.kind, "config": m.config} for m in self.members]}

@@ -31,7 +31,7 @@ import torch
 from torch import Tensor, nn
 from torch.nn import functional as F
 
-from hjrno_ros.learning.operators import NeuralOperator, check_choice, check_float, check_int
+from hjrno_ros.learning.operators.base import NeuralOperator, check_choice, check_float, check_int
 
 PAD_MODES = ("blend", "reflect", "zeros")
 

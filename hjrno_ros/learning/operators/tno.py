@@ -26,7 +26,7 @@ import torch
 from torch import Tensor, nn
 from torch.nn import functional as F
 
-from hjrno_ros.learning.operators import NeuralOperator, check_int
+from hjrno_ros.learning.operators.base import NeuralOperator, check_int
 
 
 def to_latent_matrix(n: int, m: int, like: Tensor) -> Tensor:
