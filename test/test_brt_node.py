@@ -636,3 +636,50 @@ def test_refinement_takes_over_the_filter_for_its_map_only(model_stem, tmp_path)
         refined = node.values.refinement.refined
         assert refined is None or refined.map_version != node.maps.current.version
         assert wait_for(lambda: node.status()["refinement"]["state"] == "running", 10.0), node.status()  # 2 s on
+
+
+def test_node_process_runs_without_jax_takes_integer_floats_and_stops_cleanly(model_stem):
+    """The node as its own process: JAX is never loaded (its shared libraries are not mapped, torch's are),
+    ``-p inflation_radius:=0`` (an integer for a float parameter) is accepted, and SIGINT while the worker
+    publishes exits 0 without a traceback or an error line, every time."""
+    from hjrno_ros.tools.node_process import brt_node_process
+
+    domain = DOMAIN + 25
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain)
+    driver = Driver(context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(driver)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    driver.map_pub.publish(map_msg(occupancy()))
+    try:
+        for run in range(3):
+            driver.status = {}
+            params = {"inflation_radius": 0, "value_timeout": 0.2} if run == 0 else {"value_timeout": 0.2}
+            with brt_node_process(domain, params, model_stem) as (proc, log_tail):
+                assert wait_for(lambda: driver.status.get("state") == "ok" or proc.poll() is not None, 60.0), \
+                    (driver.status, log_tail(10))
+                assert proc.poll() is None, log_tail(10)
+                if run == 0:
+                    assert driver.status["value_grid"]["inflation_radius"] == 0.0
+                    mapped = Path(f"/proc/{proc.pid}/maps").read_text()
+                    assert "libtorch" in mapped and "jaxlib" not in mapped and "xla_extension" not in mapped
+                time.sleep(0.3 + 0.3 * run)  # the worker recomputes every value_timeout / 2 = 0.1 s
+                proc.send_signal(2)
+                proc.wait(timeout=15.0)
+                log = log_tail(200)
+            assert proc.returncode == 0, log
+            assert "Traceback" not in log and "ERROR" not in log and "inference failed" not in log, log
+    finally:
+        executor.shutdown(timeout_sec=2.0)
+        driver.destroy_node()
+        rclpy.shutdown(context=context)
+        spinner.join(timeout=2.0)
+
+
+def test_docs_parameter_table_is_current():
+    """docs/node.md's parameter table is generated from the node's declarations."""
+    from hjrno_ros.ros.parameters import markdown_table
+
+    assert markdown_table() in (ROOT / "docs" / "node.md").read_text()

@@ -47,9 +47,15 @@ class BenchDriver(Node):
         self.sending = False
         self.create_subscription(TwistStamped, "cmd_vel", self._on_out, 50)
         self.create_subscription(OccupancyGrid, "brt/value_grid", self._on_grid, qos)
-        self.create_subscription(String, "brt/status", lambda m: setattr(self, "status", json.loads(m.data)), 10)
+        self.first_status: float | None = None  # monotonic s of the node's first status
+        self.create_subscription(String, "brt/status", self._on_status, 10)
         self.create_timer(1.0 / odom_rate, self._odom)
         self.create_timer(1.0 / cmd_rate, self._cmd)
+
+    def _on_status(self, msg: String) -> None:
+        if self.first_status is None:
+            self.first_status = time.monotonic()
+        self.status = json.loads(msg.data)
 
     def publish_map(self, occupancy: np.ndarray, resolution: float, origin: tuple[float, float], sec: int) -> None:
         msg = occupancy_message(occupancy, resolution, origin, self.frame_id)
@@ -110,6 +116,7 @@ def bench_drive(domain_id: int, maps: list[np.ndarray], resolution: float, origi
                 raise RuntimeError(f"brt_node did not become ready: {driver.status.get('reason', 'no status')}")
             time.sleep(0.05)
         driver.map_latency.clear()  # the first map also waited for odometry and start-up
+        ready_at = time.monotonic()
         if on_ready is not None:
             on_ready()
         driver.sending = True
@@ -126,7 +133,8 @@ def bench_drive(domain_id: int, maps: list[np.ndarray], resolution: float, origi
         time.sleep(0.5)  # let the last outputs arrive
         result = {"cmd_latency_s": list(driver.cmd_latency), "cmd_sent": len(driver.cmd_latency) + len(driver.sent),
                   "map_latency_s": list(driver.map_latency), "maps_sent": k - 1, "status": dict(driver.status),
-                  "bypass_latency_s": [], "bypass_sent": 0}
+                  "bypass_latency_s": [], "bypass_sent": 0, "first_status_at": driver.first_status,
+                  "ready_at": ready_at}
         if bypass_seconds > 0 and alive():
             if not enable.wait_for_service(timeout_sec=5.0):
                 raise RuntimeError("brt_node's ~/enable service is not available")

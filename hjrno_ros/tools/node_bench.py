@@ -10,6 +10,8 @@ second.  Measured:
 * command → filtered command latency (matched by the stamp the node copies through), p50/p95/p99;
 * map → value grid latency (matched by ``info.map_load_time`` = the map's stamp): DDS transfer of
   the map, validation, signed distance, V0 sampling, inference over the 2 × 2 (v, θ) stencil, publishing;
+* start-up: spawn → first status (model loaded, interfaces up) and spawn → filtering (status ok: map,
+  odometry and the first value table), and the node's RSS once it filters, before the load (idle RSS);
 * the node's CPU share (CPU seconds / wall seconds over the measured window; 1.0 = one core) and
   peak RSS (VmHWM, start-up included);
 * a baseline: the same node bypassed (``~/enable`` false) for up to 10 s more, so the command
@@ -61,9 +63,10 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime + stime
 
 
-def _peak_rss_mb(pid: int) -> float:
+def _rss_mb(pid: int, field: str = "VmHWM") -> float:
+    """Peak (VmHWM) or current (VmRSS) resident memory of a process, MB."""
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmHWM:"):
+        if line.startswith(field + ":"):
             return int(line.split()[1]) / 1024.0
     return float("nan")
 
@@ -81,10 +84,12 @@ def run(out: Path, seconds: float = 30.0, model: Path | None = None) -> int:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     domain = free_domain()
+    spawned = time.monotonic()
     with brt_node_process(domain, {"enable_stamped_cmd_vel": True}, model) as (proc, log_tail):
         marks: dict[str, float] = {}
 
         def on_ready() -> None:
+            marks["idle_rss"] = _rss_mb(proc.pid, "VmRSS")
             marks["cpu0"], marks["wall0"] = _cpu_seconds(proc.pid), time.monotonic()
 
         def on_done() -> None:
@@ -95,7 +100,7 @@ def run(out: Path, seconds: float = 30.0, model: Path | None = None) -> int:
                               bypass_seconds=min(10.0, seconds / 3), on_ready=on_ready, on_done=on_done,
                               alive=lambda: proc.poll() is None)
             cpu_share = (marks["cpu1"] - marks["cpu0"]) / (marks["wall1"] - marks["wall0"])
-            peak = _peak_rss_mb(proc.pid)
+            peak = _rss_mb(proc.pid)
         except RuntimeError as err:
             raise RuntimeError(f"node benchmark failed: {err} (node log: {log_tail()})") from None
     cmd_lat, map_lat, status = raw["cmd_latency_s"], raw["map_latency_s"], raw["status"]
@@ -112,7 +117,10 @@ def run(out: Path, seconds: float = 30.0, model: Path | None = None) -> int:
         "maps_matched": f"{len(map_lat)}/{raw['maps_sent']}",
         "inference_ms_last": status.get("inference_latency_ms"),
         "callback_p95_ms": (status.get("filter_ms") or {}).get("p95"),
+        "first_status_s": round(raw["first_status_at"] - spawned, 2) if raw["first_status_at"] else None,
+        "filtering_s": round(raw["ready_at"] - spawned, 2),
         "node_cpu_share": round(cpu_share, 3),
+        "node_idle_rss_MB": round(marks["idle_rss"]),
         "node_peak_rss_MB": round(peak),
         "load_avg_1m": round(os.getloadavg()[0], 2),  # other work on the machine inflates the tails
         "cmd_target_met": bool(cmd_lat) and _percentile_ms(cmd_lat, 95) <= CMD_TARGET_MS,
@@ -126,7 +134,9 @@ def run(out: Path, seconds: float = 30.0, model: Path | None = None) -> int:
             f"node in its own process ({model_shown}), map {SIZE}x{SIZE} cells at "
             f"{RESOLUTION} m republished every 1 s, odometry 50 Hz, TwistStamped commands 20 Hz. Targets: command "
             f"latency p95 <= {CMD_TARGET_MS:g} ms, map -> value grid p95 <= {MAP_TARGET_MS:g} ms. node_cpu_share is "
-            "CPU seconds / wall seconds (1.0 = one core); peak RSS includes start-up; callback_p95_ms is the time "
+            "CPU seconds / wall seconds (1.0 = one core); first_status_s / filtering_s: spawn -> first status / -> "
+            "status ok (map, odometry, first value table); idle RSS: when it first filters, before the load; "
+            "peak RSS includes start-up; callback_p95_ms is the time "
             "inside the node's command callback (last 200 commands); bypass_* is the same node with the filter "
             f"bypassed via ~/enable ({min(10.0, seconds / 3):g} s after the main run): the rclpy + DDS baseline. "
             "The driver shares the cores.")
