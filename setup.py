@@ -24,7 +24,6 @@ setup(
     maintainer_email="hjrno-ros@users.noreply.github.com",
     description="Hamilton-Jacobi reachability with neural operators as a ROS 2 safety filter",
     license="Apache-2.0",
-    tests_require=["pytest"],
     entry_points={
         "console_scripts": [
             "hjrno = hjrno_ros.cli:main",
