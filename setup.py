@@ -27,7 +27,7 @@ setup(
     entry_points={
         "console_scripts": [
             "hjrno = hjrno_ros.cli:main",
-            "brt_node = hjrno_ros.ros.node:main",
+            "brt_node = hjrno_ros.ros.main:main",
         ],
     },
 )

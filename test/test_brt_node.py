@@ -110,6 +110,7 @@ class Driver(Node):
         self.params = self.create_client(SetParameters, "/brt_node/set_parameters")
         self.enable = self.create_client(SetBool, "/brt_node/enable")
         self.pose, self.v, self.frame, self.odom_on = (*FAR, 0.0), 0.5, "map", True
+        self.q_scale = 1.0  # odometry quaternions scaled by this (a non-normalised quaternion when != 1)
         self.last_odom = 0.0
         self.create_timer(0.05, self._odom)
 
@@ -129,7 +130,8 @@ class Driver(Node):
         msg.header.stamp = self.get_clock().now().to_msg()
         x, y, th = self.pose
         msg.pose.pose.position.x, msg.pose.pose.position.y = x, y
-        msg.pose.pose.orientation.z, msg.pose.pose.orientation.w = math.sin(th / 2), math.cos(th / 2)
+        q = msg.pose.pose.orientation
+        q.z, q.w = self.q_scale * math.sin(th / 2), self.q_scale * math.cos(th / 2)
         msg.twist.twist.linear.x = self.v
         self.odom_pub.publish(msg)
         self.last_odom = time.monotonic()
@@ -148,11 +150,15 @@ class Driver(Node):
         result = self.call(self.params, SetParameters.Request(parameters=[ParameterMsg(name=name, value=pv)]))
         return result.results[0].successful, result.results[0].reason
 
-    def command(self, linear: float, angular: float, wait: float = 2.0) -> Twist | None:
-        """Publish one nominal command; the first output received after it (None: nothing came)."""
+    def command(self, linear: float, angular: float, wait: float = 2.0, **axes: float) -> Twist | None:
+        """Publish one nominal command (``axes``: other fields, e.g. linear_y=1.0); the first output received
+        after it (None: nothing came)."""
         self.out.clear()
         msg = Twist()
         msg.linear.x, msg.angular.z = linear, angular
+        for name, value in axes.items():
+            part, axis = name.split("_")
+            setattr(getattr(msg, part), axis, value)
         self.cmd_pub.publish(msg)
         if not wait_for(lambda: self.out, wait):
             return None
@@ -207,7 +213,7 @@ def settle(driver: Driver, x: float, y: float, v: float, theta: float, timeout: 
 
     def ready() -> bool:
         st, grid = driver.status, driver.status.get("value_grid")
-        return (st.get("state") in ("ok", "intervening") and grid is not None
+        return (st.get("state") in ("ok", "intervening", "unsafe_idle") and grid is not None
                 and math.hypot(grid["center"][0] - x, grid["center"][1] - y) < 0.05)
 
     assert wait_for(ready, timeout), driver.status
@@ -515,7 +521,7 @@ def test_pose_topic_and_stamped_commands(ros, model_stem):
 
 def test_missing_model_exits_nonzero_with_one_line():
     env = {**os.environ, "ROS_DOMAIN_ID": str(DOMAIN)}
-    proc = subprocess.run([sys.executable, "-m", "hjrno_ros.ros.node", "--ros-args", "-p",
+    proc = subprocess.run([sys.executable, "-m", "hjrno_ros.ros.main", "--ros-args", "-p",
                            "model_path:=/nonexistent"], capture_output=True, text=True, timeout=60, env=env)
     lines = [line for line in (proc.stdout + proc.stderr).splitlines() if line.strip()]
     assert proc.returncode == 1
@@ -683,3 +689,94 @@ def test_docs_parameter_table_is_current():
     from hjrno_ros.ros.parameters import markdown_table
 
     assert markdown_table() in (ROOT / "docs" / "node.md").read_text()
+
+
+# ------------------------------------------------------------------ issue 40: the node's contract over DDS
+
+
+def test_driving_off_the_map_edge_is_filtered(ros):
+    """The map's edge bounds the signed distance (space beyond it is unknown): heading out of the map at
+    1 m/s, 0.5 m from its edge, the command is changed (before: passed unchanged with V = 3.77)."""
+    driver, node = ros
+    st = settle(driver, 9.5, 0.0, 1.0, 0.0)
+    assert st["value"] < st["epsilon"], st
+    out = driver.command(1.0, 0.0)
+    assert out is not None and (out.linear.x, out.angular.z) != (1.0, 0.0)
+    assert node.maps.current.sd[-1, 100] <= RES / 2 + 1e-6  # the edge cell: half a cell from the map's edge
+
+
+def test_commands_beyond_the_limits_are_clipped(ros):
+    """Far from obstacles: speeds beyond [v_min, v_max], huge turn rates and non-planar axes are clipped to
+    the limits the filter assumes; a command within them still passes bit for bit."""
+    driver, node = ros
+    p = node.vf.params
+    settle(driver, *FAR, 0.5, 0.0)
+    clipped = driver.status["counts"]["clipped"]
+    for nominal, expect in (((5.0, 0.0), (p.v_max, 0.0)), ((1e308, 0.0), (p.v_max, 0.0)),
+                            ((-1.0, 0.0), (p.v_min, 0.0))):
+        out = driver.command(*nominal)
+        assert out is not None and (out.linear.x, out.angular.z) == expect, (nominal, out)
+    out = driver.command(0.5, 100.0)
+    bound = p.kappa_max * max(0.5, 0.5)
+    assert out is not None and out.linear.x == 0.5 and out.angular.z == pytest.approx(bound)
+    out = driver.command(0.5, 0.1, linear_y=1.0, angular_x=2.0)
+    assert out is not None and (out.linear.y, out.angular.x, out.linear.x, out.angular.z) == (0.0, 0.0, 0.5, 0.1)
+    assert wait_for(lambda: driver.status["counts"]["clipped"] >= clipped + 5, 2.0), driver.status["counts"]
+    out = driver.command(0.7, -0.3)
+    assert out is not None and (out.linear.x, out.angular.z) == (0.7, -0.3)
+
+
+def test_non_normalised_odometry_quaternion_is_read_right(ros):
+    """q = 10·(0, 0, sin 0.05, cos 0.05) is a heading of 0.1 rad, toward the wall 1 m ahead at 1 m/s: the
+    filter acts (before: read as 1.52 rad, V = 0.71, passed)."""
+    driver, _ = ros
+    driver.q_scale = 10.0
+    try:
+        st = settle(driver, 4.0, 0.0, 1.0, 0.1)
+        assert st["robot"]["theta"] == pytest.approx(0.1, abs=1e-6), st["robot"]
+        out = driver.command(1.0, 0.0)
+        assert out is not None and (out.linear.x, out.angular.z) != (1.0, 0.0)
+    finally:
+        driver.q_scale = 1.0
+
+
+def test_status_reports_the_present_state(ros):
+    """V <= epsilon without a recent command is "unsafe_idle" (WARN), not "ok"; far away it is "ok"."""
+    driver, node = ros
+    settle(driver, *NEAR_WALL, 1.0, 0.0)
+    assert wait_for(lambda: time.monotonic() - (node._last_cmd or (-math.inf,))[0] > node._cfg["stop_pub_timeout"]
+                    and driver.status["state"] == "unsafe_idle", 10.0), driver.status
+    assert wait_for(lambda: driver.diagnostics is not None and driver.diagnostics.level == DiagnosticStatus.WARN, 3.0)
+    settle(driver, *FAR, 0.5, 0.0)
+    assert wait_for(lambda: driver.status["state"] == "ok", 3.0), driver.status
+
+
+def test_epsilon_below_the_calibrated_margin_is_flagged(ros):
+    driver, node = ros
+    if node.card.epsilon is None:
+        pytest.skip("the test model has no calibrated epsilon")  # the bundled model (in the repository) has one
+    settle(driver, *FAR, 0.5, 0.0)
+    assert driver.status["epsilon_below_calibrated"] is False
+    eps = driver.status["epsilon"]
+    assert driver.set_param("epsilon", 0.5 * node.card.epsilon)[0]
+    try:
+        assert wait_for(lambda: driver.status["epsilon_below_calibrated"] is True, 2.0), driver.status
+        assert wait_for(lambda: driver.diagnostics is not None and driver.diagnostics.level == DiagnosticStatus.WARN
+                        and any(kv.key == "epsilon_below_calibrated" and kv.value == "True"
+                                for kv in driver.diagnostics.values), 3.0)
+    finally:
+        driver.set_param("epsilon", eps)
+
+
+def test_interrupt_at_any_moment_of_start_up_exits_cleanly(model_stem):
+    """SIGINT while rclpy, torch or the model load: exit 0, at most one line, never a traceback."""
+    env = {**os.environ, "ROS_DOMAIN_ID": str(DOMAIN + 30), "PYTHONUNBUFFERED": "1"}
+    for delay in (0.2, 0.7, 1.4, 2.2, 3.0):
+        proc = subprocess.Popen([sys.executable, "-m", "hjrno_ros.ros.main", "--ros-args", "-p",
+                                 f"model_path:={model_stem}"], env=env, stdout=subprocess.PIPE,
+                                stderr=subprocess.STDOUT, text=True)
+        time.sleep(delay)
+        proc.send_signal(2)
+        out, _ = proc.communicate(timeout=30.0)
+        lines = [ln for ln in out.splitlines() if ln.strip() and "[INFO]" not in ln]
+        assert proc.returncode == 0 and "Traceback" not in out and len(lines) <= 1, (delay, out)

@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -167,3 +169,56 @@ def test_result_files_are_checked(tmp_path, one_window):
     (tmp_path / "cut.safetensors").write_bytes((tmp_path / "short.safetensors").read_bytes()[:100])
     with pytest.raises(ValueError, match="not a refinement file"):
         mr.read_table(tmp_path / "cut.safetensors")
+
+
+def test_the_child_dies_with_its_node_even_after_kill_9(tmp_path, one_window):
+    """A node killed with -9 cannot stop its refinement child: the child notices it was orphaned, removes its
+    work folder and exits; the next node's start removes folders of dead nodes."""
+    import signal
+
+    grid, v0, _ = one_window
+    np.save(tmp_path / "v0.npy", v0)
+    script = (
+        "import json, sys, time\nimport numpy as np\n"
+        "from hjrno_ros.core.grids import GridSpec\nfrom hjrno_ros.truth import refinement as mr\n"
+        f"grid = GridSpec.from_dict(json.loads({json.dumps(json.dumps(grid.as_dict()))!s}))\n"
+        f"r = mr.BackgroundRefinement(1)\nr.start(1, np.load({str(tmp_path / 'v0.npy')!r}), grid, "
+        f"{str(MODEL)!r}, horizon=600.0, stage=600.0)\n"
+        "print(r._proc.pid, r._dir, flush=True)\ntime.sleep(120)\n")
+    parent = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    child_pid, workdir = parent.stdout.readline().split()
+    child_pid, workdir = int(child_pid), Path(workdir)
+    assert workdir.is_dir() and workdir.name.startswith(f"hjrno_refine_{parent.pid}_")
+    time.sleep(1.0)
+    parent.send_signal(signal.SIGKILL)
+    parent.wait()
+    end = time.monotonic() + 20.0
+    while time.monotonic() < end:
+        try:
+            os.kill(child_pid, 0)
+        except ProcessLookupError:
+            break
+        with open(f"/proc/{child_pid}/stat") as f:
+            if f.read().rsplit(")", 1)[1].split()[0] == "Z":  # exited, not reaped yet
+                break
+        time.sleep(0.1)
+    else:
+        os.kill(child_pid, signal.SIGKILL)
+        pytest.fail("the refinement child outlived its killed node")
+    assert wait_until(lambda: not workdir.exists(), 5.0)
+    stale = Path(tempfile.gettempdir()) / f"hjrno_refine_{parent.pid}_stale"
+    stale.mkdir()
+    mine = Path(tempfile.mkdtemp(prefix=f"hjrno_refine_{os.getpid()}_"))
+    try:
+        assert stale in mr.remove_stale_workdirs() and not stale.exists() and mine.exists()
+    finally:
+        shutil.rmtree(mine, ignore_errors=True)
+
+
+def wait_until(predicate, timeout: float) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(0.05)
+    return bool(predicate())

@@ -220,3 +220,26 @@ def test_the_weights_must_take_the_inputs_the_card_lists(base, tmp_path):
     checkpoint.update_card(stem, {"inputs": base["inputs"], "dynamics": {"kappa_max": 1.0}})
     with pytest.raises(ValueError, match=r"field 'dynamics.a_max' is missing"):  # the old code's silent 1.0
         checkpoint.load_model(stem)
+
+
+@pytest.mark.parametrize("field, change", [
+    ("grid", lambda c: (c["grid"].update(shape=[64, 64, 9, 16]), c["window"].update(shape=[64, 64]))),
+    ("grid", lambda c: (c["grid"].update(lo=[-10.0, -10.0, 0.0, c["grid"]["lo"][3]], hi=[10.0, 10.0, 1.0,
+                                                                                       c["grid"]["hi"][3]]),
+                        c["window"].update(lo=[-10.0, -10.0], hi=[10.0, 10.0]))),
+    ("dynamics", lambda c: c["dynamics"].update(a_max=2.0)),
+])
+def test_a_card_that_contradicts_what_the_weights_were_trained_for_is_refused(tmp_path, field, change):
+    """The weights record the grid, window, dynamics and inputs they were trained for (safetensors
+    metadata): a card edited afterwards (a 64 x 64 grid or a 20 m window over 32 x 32, 10 m weights) is
+    refused with one line naming the field, instead of filtering on a wrong scale."""
+    from conftest import copy_model
+
+    stem = copy_model(ROOT / "models" / "default", tmp_path)
+    checkpoint.load_typed(stem)  # unchanged: loads
+    card = load_card(stem)
+    change(card)
+    checkpoint.paths(stem)[1].write_text(json.dumps(card))
+    with pytest.raises(ValueError, match=f"field '{field}'") as err:
+        checkpoint.load_typed(stem)
+    assert "\n" not in str(err.value)

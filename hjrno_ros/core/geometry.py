@@ -240,22 +240,38 @@ def occupancy_to_mask(occupancy: np.ndarray, occupied_threshold: int = 50, unkno
 def occupancy_signed_distance(
     occupancy: np.ndarray, resolution: float, occupied_threshold: int = 50, unknown_is_obstacle: bool = True
 ) -> np.ndarray:
-    """Signed distance (m) at the cell centres of an occupancy raster ``[ix, iy]``."""
-    return signed_distance_from_mask(occupancy_to_mask(occupancy, occupied_threshold, unknown_is_obstacle), resolution)
+    """Signed distance (m, float32) at the cell centres of an occupancy raster ``[ix, iy]``.
+
+    With ``unknown_is_obstacle`` the space beyond the map is unknown, hence an obstacle: the map's outer
+    edge bounds the distance (a one-cell occupied border is added before the distance transform)."""
+    mask = occupancy_to_mask(occupancy, occupied_threshold, unknown_is_obstacle)
+    if not unknown_is_obstacle:
+        return signed_distance_from_mask(mask, resolution).astype(np.float32)
+    padded = np.pad(mask, 1, constant_values=True)
+    return signed_distance_from_mask(padded, resolution)[1:-1, 1:-1].astype(np.float32)
 
 
 def sample_raster(raster: np.ndarray, origin: tuple[float, float], resolution: float, points: np.ndarray,
                   outside: float | None = None) -> np.ndarray:
     """Bilinear samples of a cell-centred raster ``[ix, iy]`` at ``points`` (..., 2).
 
-    Points beyond the outermost cell centres take the nearest value, or ``outside`` when given.
+    Points beyond the outermost cell centres take the nearest value, or ``outside`` when given.  Only the
+    block of cells the points touch is read, so the cost follows the points, not the raster's size.
     """
     pts = np.asarray(points, float)
     ij = (pts - np.asarray(origin, float)) / resolution - 0.5
     coords = np.moveaxis(ij, -1, 0).reshape(2, -1)
-    out = ndimage.map_coordinates(np.asarray(raster, float), coords, order=1, mode="nearest").reshape(pts.shape[:-1])
+    n = np.asarray(raster.shape)
+    finite = np.isfinite(coords).all(0)
+    if finite.any():
+        lo = np.clip(np.floor(coords[:, finite].min(1)).astype(int) - 1, 0, n - 1)
+        hi = np.clip(np.ceil(coords[:, finite].max(1)).astype(int) + 2, lo + 1, n)
+    else:
+        lo, hi = np.zeros(2, int), np.minimum(n, 1)
+    block = np.asarray(raster[lo[0]:hi[0], lo[1]:hi[1]], float)
+    local = coords - lo[:, None]
+    out = ndimage.map_coordinates(block, local, order=1, mode="nearest").reshape(pts.shape[:-1])
     if outside is not None:
-        n = np.asarray(raster.shape)
         beyond = np.any((ij < -0.5) | (ij > n - 0.5), axis=-1)
         out = np.where(beyond, outside, out)
     return out

@@ -13,7 +13,9 @@ Given V and ∇V at the state (x, y, v, θ), three modes:
   the command unchanged, near it it bends the command only as much as needed.
 
 Commands are twists (linear m/s, angular rad/s); the base turns them into controls as
-:func:`twist_to_control` says.  Anything non-finite fails closed: a stop command.
+:func:`twist_to_control` says.  The model vouches only for commands inside its limits, so every
+command, nominal or filtered, is first clipped to them (:func:`clip_to_limits`).  Anything
+non-finite fails closed: a stop command.
 """
 
 from __future__ import annotations
@@ -53,6 +55,7 @@ class Decision:
     intervened: bool
     value: float  # V at the state, m
     reason: str
+    clipped: bool = False  # the nominal was outside the model's limits
 
 
 def twist_to_control(params: CarParams, states: np.ndarray, twist: np.ndarray, dt: float) -> np.ndarray:
@@ -67,6 +70,17 @@ def control_to_twist(params: CarParams, states: np.ndarray, control: np.ndarray,
     """The twists ``(n, 2)`` that make such a base apply ``control`` (a, κ) over one period ``dt``."""
     v = states[..., 2]
     return np.stack([np.clip(v + control[..., 0] * dt, params.v_min, params.v_max), v * control[..., 1]], -1)
+
+
+def clip_to_limits(params: CarParams, states: np.ndarray, twist: np.ndarray, dt: float) -> np.ndarray:
+    """Twists ``(..., 2)`` clipped to what the model vouches for over one period ``dt``: linear in
+    [v_min, v_max]; |angular| ≤ κ_max·max(|v|, |v′|), with v′ the speed the base can reach toward the
+    command within a_max·dt (θ̇ = v·u₂, |u₂| ≤ κ_max)."""
+    v = states[..., 2]
+    linear = np.clip(twist[..., 0], params.v_min, params.v_max)
+    reach = np.clip(linear, v - params.a_max * dt, v + params.a_max * dt)
+    bound = params.kappa_max * np.maximum(np.abs(v), np.abs(reach))
+    return np.stack([linear, np.clip(twist[..., 1], -bound, bound)], -1)
 
 
 def safe_twist(params: CarParams, state: np.ndarray, grad: np.ndarray, dt: float) -> np.ndarray:
@@ -123,23 +137,30 @@ def filter_command(params: CarParams, settings: FilterSettings, state: np.ndarra
         return stop(float(value), "non-finite state or value")
     if not (math.isfinite(linear) and math.isfinite(angular)):
         return stop(float(value), "non-finite nominal command")
-    out, intervened = filter_batch(params, settings, np.asarray(state, float)[None], np.array([value], float),
-                                   np.asarray(grad, float)[None], np.array([[linear, angular]], float))
+    state = np.asarray(state, float)
+    nominal = np.array([[linear, angular]], float)
+    clipped = bool(np.any(clip_to_limits(params, state[None], nominal, settings.dt) != nominal))
+    out, intervened = filter_batch(params, settings, state[None], np.array([value], float),
+                                   np.asarray(grad, float)[None], nominal)
     if not intervened[0]:
+        if clipped:
+            return Decision(float(out[0, 0]), float(out[0, 1]), False, float(value), "clipped to limits", True)
         return Decision(float(linear), float(angular), False, float(value), "pass")
     reason = "qp" if settings.mode == "qp" else "safe control" if nominal_weight(settings, value) == 0 else "blend"
-    return Decision(float(out[0, 0]), float(out[0, 1]), True, float(value), reason)
+    return Decision(float(out[0, 0]), float(out[0, 1]), True, float(value), reason, clipped)
 
 
 def filter_batch(params: CarParams, settings: FilterSettings, states: np.ndarray, values: np.ndarray,
                  grads: np.ndarray, nominal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """:func:`filter_command` for ``n`` robots at once: commands ``(n, 2)`` and intervened ``(n,)``.
 
-    Non-finite inputs fail closed (zero command), as in the scalar version."""
+    Nominal commands are clipped to the limits first, and so is the result.  Non-finite inputs fail
+    closed (zero command), as in the scalar version."""
     bad = ~(np.isfinite(states).all(-1) & np.isfinite(values) & np.isfinite(grads).all(-1)
             & np.isfinite(nominal).all(-1))
     states, values, grads, nominal = (np.where(bad[(...,) + (None,) * (a.ndim - 1)], 0.0, a)
                                       for a in (states, values, grads, nominal))
+    nominal = clip_to_limits(params, states, nominal, settings.dt)
     if settings.mode == "qp":
         u, changed = minimal_change(params, settings, states, values, grads,
                                     twist_to_control(params, states, nominal, settings.dt))
@@ -148,5 +169,6 @@ def filter_batch(params: CarParams, settings: FilterSettings, states: np.ndarray
         w = nominal_weight(settings, values)
         out = w[:, None] * nominal + (1 - w[:, None]) * safe_twist(params, states, grads, settings.dt)
         changed = w < 1.0
+    out = clip_to_limits(params, states, out, settings.dt)
     out[bad] = 0.0
     return out, changed | bad

@@ -27,8 +27,34 @@ def save(stem: str | Path, tensors: dict[str, torch.Tensor], card: dict) -> tupl
     if missing:
         raise ValueError(f"model card lacks {missing}")
     flat = {k: v.detach().contiguous().cpu() for k, v in tensors.items()}
-    atomic_write(weights, lambda tmp: save_file(flat, tmp, metadata={"format": CARD_FORMAT}))
+    atomic_write(weights, lambda tmp: save_file(flat, tmp, metadata=trained_for(card)))
     return weights, _write_card(card_path, card)
+
+
+TRAINED_FOR = ("grid", "window", "dynamics", "inputs")  # recorded in the weights' metadata, checked against the card
+
+
+def trained_for(card: dict) -> dict[str, str]:
+    """The safetensors metadata of a model's weights: the format and what they were trained for, so a card
+    edited afterwards (another grid, window, robot or inputs) is refused at load instead of running on."""
+    return {"format": CARD_FORMAT, **{k: json.dumps(card[k], sort_keys=True) for k in TRAINED_FOR if k in card}}
+
+
+def check_trained_for(stem: str | Path, card: dict) -> None:
+    """ValueError naming the first card field that contradicts the weights' record (weights saved before the
+    record existed carry none and pass)."""
+    from safetensors import safe_open
+
+    weights = paths(stem)[0]
+    try:
+        with safe_open(str(weights), "pt") as f:
+            meta = f.metadata() or {}
+    except (SafetensorError, OSError, ValueError, RuntimeError) as err:
+        raise ValueError(f"{weights} is not a readable safetensors file ({str(err).splitlines()[0]})") from None
+    for key in TRAINED_FOR:
+        if key in meta and json.loads(meta[key]) != json.loads(json.dumps(card.get(key), sort_keys=True)):
+            raise ValueError(f"{paths(stem)[1]}: field '{key}' is {json.dumps(card.get(key))}, but the weights "
+                             f"were trained for {meta[key]}")
 
 
 def _write_card(path: Path, card: dict) -> Path:
@@ -107,6 +133,7 @@ def load_typed(stem: str | Path, device: str | torch.device = "cpu", average: bo
         raise ValueError(f"{weights} does not match the architecture in its model card ({k}: weights "
                          f"{tuple(tensors[k].shape)}, card {tuple(expected[k].shape)}; input channels: card "
                          f"{len(channels)})")
+    check_trained_for(stem, card.data)
     model.load_state_dict(tensors)
     frames = card.member_frames if frames is None else frames
     if frames:

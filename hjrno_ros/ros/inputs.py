@@ -21,7 +21,7 @@ from nav_msgs.msg import OccupancyGrid, Odometry
 
 from hjrno_ros.core import geometry
 from hjrno_ros.core.grids import wrap_angle
-from hjrno_ros.ros.messages import finite, occupancy_array, usable_quaternion, yaw_of
+from hjrno_ros.ros.messages import finite, occupancy_array, planar_yaw
 
 MAP_YAW_TOLERANCE = 1e-3  # rad: only axis-aligned maps are supported
 Pose2 = tuple[float, float, float]  # (x, y, yaw)
@@ -56,9 +56,11 @@ def parse_map(msg: OccupancyGrid, version: int, received: float) -> MapData:
     if not (math.isfinite(res) and res > 0):
         raise MapRejected(f"map resolution must be finite and > 0, got {res}")
     p, q = info.origin.position, info.origin.orientation
-    if not finite(p.x, p.y) or not usable_quaternion(q):
-        raise MapRejected("map origin pose is not finite or its quaternion is zero")
-    yaw = yaw_of(q)
+    if not finite(p.x, p.y):
+        raise MapRejected("map origin position is not finite")
+    yaw = planar_yaw(q, MAP_YAW_TOLERANCE)
+    if yaw is None:
+        raise MapRejected("map origin quaternion is zero, not finite, tilted or mirrored")
     if abs(yaw) > MAP_YAW_TOLERANCE:
         raise MapRejected(f"map origin is rotated (yaw {yaw:.4f} rad); only axis-aligned maps are supported")
     occ = occupancy_array(msg)
@@ -205,11 +207,12 @@ class StateInput:
         self.fix: PoseFix | None = None
 
     def on_odom(self, msg: Odometry) -> bool:
-        """Take an odometry message; False if it is unusable (NaN/Inf, zero quaternion)."""
-        p, q, v = msg.pose.pose.position, msg.pose.pose.orientation, msg.twist.twist.linear.x
-        if not finite(p.x, p.y, v) or not usable_quaternion(q):
+        """Take an odometry message; False if it is unusable (NaN/Inf, a zero or non-planar quaternion)."""
+        p, v = msg.pose.pose.position, msg.twist.twist.linear.x
+        yaw = planar_yaw(msg.pose.pose.orientation)
+        if not finite(p.x, p.y, v) or yaw is None:
             return False
-        sample = OdomSample(float(p.x), float(p.y), yaw_of(q), float(v), msg.header.frame_id, _stamp_ns(msg.header),
+        sample = OdomSample(float(p.x), float(p.y), yaw, float(v), msg.header.frame_id, _stamp_ns(msg.header),
                             time.monotonic())
         self.odom = sample
         if self.pose_topic:
@@ -221,8 +224,9 @@ class StateInput:
 
     def on_pose(self, msg: PoseWithCovarianceStamped) -> bool:
         """Take a map-frame pose; False if it is unusable."""
-        p, q = msg.pose.pose.position, msg.pose.pose.orientation
-        if not finite(p.x, p.y) or not usable_quaternion(q):
+        p = msg.pose.pose.position
+        yaw = planar_yaw(msg.pose.pose.orientation)
+        if not finite(p.x, p.y) or yaw is None:
             return False
         stamp_ns = _stamp_ns(msg.header)
         history = list(self._history)
@@ -230,7 +234,7 @@ class StateInput:
         if history:  # odometry pose at the pose's time: dead reckoning starts from there
             nearest = min(history, key=lambda s: abs(s.stamp_ns - stamp_ns))
             odom = (nearest.x, nearest.y, nearest.yaw)
-        self.fix = PoseFix((float(p.x), float(p.y), yaw_of(q)), odom, msg.header.frame_id, time.monotonic())
+        self.fix = PoseFix((float(p.x), float(p.y), yaw), odom, msg.header.frame_id, time.monotonic())
         return True
 
     def get(self, now: float, timeout: float, map_frame: str | None) -> tuple[RobotState | None, str]:

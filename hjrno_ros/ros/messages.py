@@ -24,14 +24,21 @@ def finite(*values: float) -> bool:
     return all(math.isfinite(v) for v in values)
 
 
-def yaw_of(q: Any) -> float:
-    """Yaw (rad) of a geometry_msgs Quaternion."""
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+PLANAR_TILT = 0.2  # rad: the most roll/pitch a planar robot's pose may have (ramps, sensor noise)
 
 
-def usable_quaternion(q: Any) -> bool:
-    """Finite and not (nearly) zero."""
-    return finite(q.x, q.y, q.z, q.w) and (q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w) >= 1e-12
+def planar_yaw(q: Any, tilt: float = PLANAR_TILT) -> float | None:
+    """Yaw (rad) of a geometry_msgs Quaternion after normalising it; None if it is non-finite, (nearly) zero,
+    or tilted more than ``tilt`` from the plane (a mirrored pose is tilted by π)."""
+    if not finite(q.x, q.y, q.z, q.w):
+        return None
+    norm2 = q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w
+    if not 1e-12 <= norm2 < math.inf:
+        return None
+    x, y, z, w = (c / math.sqrt(norm2) for c in (q.x, q.y, q.z, q.w))
+    if 1.0 - 2.0 * (x * x + y * y) < math.cos(tilt):  # the body z axis' z component: cos(tilt)
+        return None
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
 def occupancy_array(msg: OccupancyGrid) -> np.ndarray:

@@ -90,6 +90,7 @@ class BrtNode(Node):
         self.last_decision: safety_filter.Decision | None = None
         self._last_decision_time = -math.inf
         self._last_cmd: tuple[float, str] | None = None  # (monotonic s, header frame_id)
+        self._last_nominal: tuple[float, float] | None = None  # (linear, angular) of the last filtered nominal
         self.maps = MapInput(cfg["map_topic"])
         self.states = StateInput(cfg["odom_topic"], cfg["pose_topic"])
         refinement = (Refinement(self.vf.grid, str(self.model_stem), cfg["refine_horizon"], cfg["refine_stage"],
@@ -192,6 +193,13 @@ class BrtNode(Node):
     def _apply_settings(self, cfg: dict[str, Any]) -> None:
         self.settings = parameters.filter_settings(self.card, cfg)
         self.refined_settings, self.refined_from = parameters.refined_filter_settings(self.card, self.settings, cfg)
+        if self._epsilon_below_card():
+            self.get_logger().warning(
+                f"epsilon {self.settings.epsilon:g} m is below the model card's calibrated {self.card.epsilon:g} m: "
+                "the calibrated false-safe guarantee does not hold")
+
+    def _epsilon_below_card(self) -> bool:
+        return self.card.epsilon is not None and self.settings.epsilon < self.card.epsilon
 
     def _merged(self, params: list[Parameter]) -> tuple[dict[str, Any], str | None]:
         cfg = dict(self._cfg)
@@ -234,12 +242,12 @@ class BrtNode(Node):
     def _on_odom(self, msg: Odometry) -> None:
         if not self.states.on_odom(msg):
             self.counts.add("odom")
-            self._log("warning", "odometry with NaN/Inf (or zero quaternion) dropped")
+            self._log("warning", "odometry with NaN/Inf or a zero or non-planar quaternion dropped")
 
     def _on_pose(self, msg: PoseWithCovarianceStamped) -> None:
         if not self.states.on_pose(msg):
             self.counts.add("pose")
-            self._log("warning", "pose with NaN/Inf (or zero quaternion) dropped")
+            self._log("warning", "pose with NaN/Inf or a zero or non-planar quaternion dropped")
 
     # ------------------------------------------------------------------ the fail-closed check
     def check(self, now: float) -> tuple[str, dict[str, Any]]:
@@ -261,7 +269,7 @@ class BrtNode(Node):
     def _speed_check(self, state: RobotState) -> tuple[float | None, str]:
         p, tol = self.vf.params, self._cfg["speed_tolerance"]
         if not p.v_min - tol <= state.v <= p.v_max + tol:
-            return None, f"speed {state.v:.3f} m/s outside the model's range [{p.v_min:g}, {p.v_max:g}] m/s"
+            return None, f"speed {state.v:.4g} m/s outside the model's range [{p.v_min:g}, {p.v_max:g}] m/s"
         return state.v, ""
 
     # ------------------------------------------------------------------ command path
@@ -305,10 +313,14 @@ class BrtNode(Node):
         refined = val.source == "refined" and val.horizon >= self.refined_from
         settings = self.refined_settings if refined else self.settings
         decision = safety_filter.filter_command(p, settings, s, float(values[0]), grads[0], t.linear.x, t.angular.z)
-        if decision.intervened:
+        planar = t.linear.y == t.linear.z == t.angular.x == t.angular.y == 0.0  # a planar base has no other axes
+        self._last_nominal = (t.linear.x, t.angular.z)
+        if decision.intervened or decision.clipped or not planar:
             self._cmd_pub.publish(self._command(decision.linear, decision.angular, "", header))
+            if decision.clipped or not planar:
+                self.counts.add("clipped")
         else:
-            self._cmd_pub.publish(msg)  # unchanged, bit for bit
+            self._cmd_pub.publish(msg)  # within the limits and unchanged: bit for bit
         self._record(decision, now, stop=decision.reason.startswith("non-finite"))
 
     def _record(self, decision: safety_filter.Decision, now: float, stop: bool) -> None:
@@ -356,9 +368,8 @@ class BrtNode(Node):
         if state is not None and val is not None:
             p = self.vf.params
             value = float(val.table.value(table_state(state, val.theta, p.v_min, p.v_max))[0])
-        recent = self.last_decision is not None and now - self._last_decision_time <= self._cfg["stop_pub_timeout"]
-        mode, why = status.mode(self.enabled, reason, recent and self.last_decision.intervened,
-                                self.last_decision.reason if self.last_decision else "")
+        mode, why = status.mode(self.enabled, reason, self._present_decision(now, data),
+                                value if value is not None else math.nan, self.settings.epsilon)
         m, odom, latest = self.maps.current, self.states.odom, self.values.value
         counts = self.counts.snapshot()
         refinement = self.values.refinement
@@ -367,6 +378,8 @@ class BrtNode(Node):
         return {
             "state": mode, "reason": why, "value": value, "robot": robot,
             "epsilon": self.settings.epsilon,
+            "epsilon_calibrated": self.card.epsilon,
+            "epsilon_below_calibrated": self._epsilon_below_card(),
             "refine_epsilon": self.refined_settings.epsilon if refinement is not None else None,
             "refine_epsilon_from_s": self.refined_from if refinement is not None else None,
             "filter_mode": self.settings.mode,
@@ -378,7 +391,7 @@ class BrtNode(Node):
             "map_stamp": [m.stamp.sec, m.stamp.nanosec] if m else None,
             "last_map_error": self.maps.error,
             "dropped": {**{k: counts[k] for k in ("cmd", "odom", "pose")}, "map": self.maps.rejected},
-            "counts": {**{k: counts[k] for k in ("commands", "interventions", "stops")},
+            "counts": {**{k: counts[k] for k in ("commands", "interventions", "clipped", "stops")},
                        "inferences": self.values.inferences, "inference_errors": self.values.errors},
             "value_grid": latest.grid_info if latest else None,
             "value_source": latest.source if latest else None,
@@ -387,6 +400,18 @@ class BrtNode(Node):
             "symmetry_average": self.card.symmetry_average,
         }
 
+    def _present_decision(self, now: float, data: dict[str, Any]) -> safety_filter.Decision | None:
+        """What the filter would do now with the last nominal command, if one came within stop_pub_timeout."""
+        recent = self._last_cmd is not None and now - self._last_cmd[0] <= self._cfg["stop_pub_timeout"]
+        if not recent or self._last_nominal is None or "value" not in data:
+            return None
+        state, val, p = data["state"], data["value"], self.vf.params
+        s = table_state(state, val.theta, p.v_min, p.v_max)
+        values, grads = val.table.value_and_gradient(s)
+        refined = val.source == "refined" and val.horizon >= self.refined_from
+        settings = self.refined_settings if refined else self.settings
+        return safety_filter.filter_command(p, settings, s, float(values[0]), grads[0], *self._last_nominal)
+
     def _publish_status(self) -> None:
         self._status_pub.publish(String(data=json.dumps(self.status())))
 
@@ -394,14 +419,9 @@ class BrtNode(Node):
         self._diag_pub.publish(status.diagnostics(self.status(), self.get_name(), self.get_clock().now().to_msg()))
 
 
-def _interrupt(signum: int, frame: Any) -> None:
-    raise KeyboardInterrupt
-
-
 def main(argv: list[str] | None = None) -> int:
-    """Console entry ``brt_node``: spin until SIGINT/SIGTERM; 1 when the node cannot start.  rclpy's own
-    signal handler is off: the worker is stopped before the context shuts down."""
-    signal.signal(signal.SIGTERM, _interrupt)
+    """Spin until SIGINT/SIGTERM (KeyboardInterrupt, see :mod:`hjrno_ros.ros.main`); 1 when the node cannot
+    start.  rclpy's own signal handler is off: the worker is stopped before the context shuts down."""
     logger = rclpy.logging.get_logger(NODE_NAME)
     try:
         rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
@@ -424,6 +444,8 @@ def main(argv: list[str] | None = None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second interrupt must not break the clean stop
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
         node.stop()
         executor.shutdown(timeout_sec=2.0)
         node.destroy_node()
@@ -432,4 +454,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from hjrno_ros.ros.main import main as entry
+
+    sys.exit(entry())

@@ -13,7 +13,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 STATUS_PERIOD = 0.1  # s
 DIAGNOSTICS_PERIOD = 1.0  # s
 LEVELS = {"ok": DiagnosticStatus.OK, "intervening": DiagnosticStatus.OK, "bypassed": DiagnosticStatus.WARN,
-          "fail_closed": DiagnosticStatus.ERROR}
+          "unsafe_idle": DiagnosticStatus.WARN, "fail_closed": DiagnosticStatus.ERROR}
 NESTED = ("dropped", "counts", "value_grid", "robot", "filter_ms", "refinement")
 
 
@@ -24,6 +24,7 @@ class Counters:
     pose: int = 0  # non-finite poses dropped
     commands: int = 0
     interventions: int = 0
+    clipped: int = 0  # nominal commands outside the model's limits (or with non-planar axes), published clipped
     stops: int = 0  # zero commands published while fail-closed
 
     def __post_init__(self) -> None:
@@ -55,23 +56,31 @@ class CommandTimes:
                 "max": round(float(times.max()), 3)}
 
 
-def mode(enabled: bool, reason: str, intervening: bool, decision_reason: str) -> tuple[str, str]:
-    """(state, reason) of the status: bypassed, fail_closed, intervening or ok."""
+def mode(enabled: bool, reason: str, decision: Any, value: float, epsilon: float) -> tuple[str, str]:
+    """(state, reason) of the status, for the present: bypassed; fail_closed; with a recent nominal command,
+    intervening or ok as the filter would decide now (``decision``); without one, unsafe_idle when
+    V ≤ ε (the next command will be changed), else ok."""
     if not enabled:
         return "bypassed", "filter bypassed via ~/enable"
     if reason:
         return "fail_closed", reason
-    if intervening:
-        return "intervening", decision_reason
+    if decision is not None:
+        return ("intervening", decision.reason) if decision.intervened else ("ok", decision.reason)
+    if value <= epsilon:
+        return "unsafe_idle", f"V = {value:.3f} m <= epsilon {epsilon:g} m with no recent command"
     return "ok", "pass"
 
 
 def diagnostics(status: dict[str, Any], name: str, stamp: Any) -> DiagnosticArray:
     """The status as one DiagnosticStatus: OK (ok, intervening), WARN (bypassed), ERROR (fail_closed)."""
     flat = {k: v for k, v in status.items() if k not in NESTED}
+    if status.get("epsilon_below_calibrated"):
+        entry_level = max(LEVELS[status["state"]], DiagnosticStatus.WARN)
+    else:
+        entry_level = LEVELS[status["state"]]
     flat.update({f"dropped_{k}": v for k, v in status["dropped"].items()})
     flat.update(status["counts"])
-    entry = DiagnosticStatus(level=LEVELS[status["state"]], name=f"{name}: BRT safety filter",
+    entry = DiagnosticStatus(level=entry_level, name=f"{name}: BRT safety filter",
                              message=status["reason"], hardware_id="hjrno_ros",
                              values=[KeyValue(key=k, value=str(v)) for k, v in flat.items()])
     msg = DiagnosticArray(status=[entry])

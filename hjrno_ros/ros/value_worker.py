@@ -201,8 +201,9 @@ class ValueWorker:
         p = self.vf.params
         s = state.vector(p.v_min, p.v_max)
         if not bool(val.table.inside(s, axes=(0, 1))):
-            return None, f"state ({s[0]:.2f}, {s[1]:.2f}) outside the value window centred at {val.center}"
+            return None, (f"state ({s[0]:.4g}, {s[1]:.4g}) outside the value window centred at "
+                          f"({val.center[0]:.4g}, {val.center[1]:.4g})")
         grid = val.table.grid
         if not grid.lo[2] - self._dv <= s[2] <= grid.hi[2] + self._dv:
-            return None, f"speed {s[2]:.2f} m/s outside the value table's stencil [{grid.lo[2]:.2f}, {grid.hi[2]:.2f}]"
+            return None, f"speed {s[2]:.4g} m/s outside the value table's stencil [{grid.lo[2]:.2f}, {grid.hi[2]:.2f}]"
         return val, ""

@@ -1,8 +1,8 @@
 """``hjrno bench node``: brt_node under a realistic load over real DDS, against the design targets.
 
-The node runs in its own process (``python -m hjrno_ros.ros.node``, TwistStamped commands, the
+The node runs in its own process (``python -m hjrno_ros.ros.main``, TwistStamped commands, the
 bundled model unless one is given) so its CPU time and peak RSS are its own.  A driver in this
-process (:class:`hjrno_ros.ros.node.BenchDriver`; rclpy stays in that one module) publishes a
+process (:class:`hjrno_ros.ros.bench_driver.BenchDriver`) publishes a
 20 m × 20 m map at 0.05 m (400 × 400 cells, transient local) with walls and boxes, odometry of a
 robot in free space at 50 Hz and nominal commands at 20 Hz, and republishes a changed map every
 second.  Measured:

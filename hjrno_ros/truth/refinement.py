@@ -196,7 +196,8 @@ class BackgroundRefinement:
     def start(self, key: int, v0: np.ndarray, grid: GridSpec, model: str, horizon: float, stage: float) -> None:
         """Stop any previous run and refine ``v0`` on ``grid`` for ``horizon`` simulated s."""
         self.stop()
-        self._dir = Path(tempfile.mkdtemp(prefix="hjrno_refine_"))
+        remove_stale_workdirs()
+        self._dir = Path(tempfile.mkdtemp(prefix=f"{WORKDIR_PREFIX}{os.getpid()}_"))
         write_request(self._dir / REQUEST, v0, grid, model, horizon, stage)
         self._log = open(self._dir / "log.txt", "w+")  # noqa: SIM115 - closed in stop()
         self._proc = subprocess.Popen([sys.executable, "-m", "hjrno_ros.truth.refinement", str(self._dir)],
@@ -255,12 +256,54 @@ class BackgroundRefinement:
         self._proc = self._dir = self._key = None
 
 
+WORKDIR_PREFIX = "hjrno_refine_"  # + the node's pid + "_": a folder whose node died is removed on the next start
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def remove_stale_workdirs(root: str | Path | None = None) -> list[Path]:
+    """Remove refinement folders left by nodes that no longer run (kill -9); the removed paths."""
+    removed = []
+    for path in Path(root or tempfile.gettempdir()).glob(f"{WORKDIR_PREFIX}*_*"):
+        pid = path.name[len(WORKDIR_PREFIX):].split("_", 1)[0]
+        if pid.isdigit() and not _alive(int(pid)):
+            shutil.rmtree(path, ignore_errors=True)
+            removed.append(path)
+    return removed
+
+
+def _die_with_parent(workdir: Path, period: float = 0.5) -> None:
+    """Child side: exit (removing the work folder) as soon as the node that started it is gone, even after
+    kill -9 (the child is then re-parented)."""
+    import threading
+
+    parent = os.getppid()
+
+    def watch() -> None:
+        while True:
+            time.sleep(period)
+            if os.getppid() != parent:
+                shutil.rmtree(workdir, ignore_errors=True)
+                os._exit(1)
+
+    threading.Thread(target=watch, name="parent_watch", daemon=True).start()
+
+
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
     if len(args) != 1:
         print("usage: python -m hjrno_ros.truth.refinement WORKDIR", file=sys.stderr)
         return 2
     try:
+        _die_with_parent(Path(args[0]))
         run_request(Path(args[0]))
     except Exception as err:  # one line for the node's status
         print(f"refinement failed: {type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}",
