@@ -110,6 +110,9 @@ def run(out: Path, seconds: float = SOAK_S, model: Path | None = None, seed: int
             key = re.sub(r"\[\d+\.\d+\]", "", line)
             key = re.sub(r"[-+]?\d[\d.e+-]*", "#", key)[:160]  # one entry per kind of error
             errors[key] = errors.get(key, 0) + 1
+    status = result.get("status", {})
+    if os.path.isabs(status.get("model", "")) and Path(status["model"]).is_relative_to(Path.cwd()):
+        status["model"] = os.path.relpath(status["model"])  # results files name no machine's paths
     violations = result.get("violations", [])
     nonfinite = sum("non-finite" in v["problems"] for v in violations)
     crashes = int(died) + int(code != 0) + int(any("Traceback" in line for line in log))
