@@ -769,12 +769,17 @@ def test_epsilon_below_the_calibrated_margin_is_flagged(ros):
 
 
 def test_interrupt_at_any_moment_of_start_up_exits_cleanly(model_stem):
-    """SIGINT while rclpy, torch or the model load: exit 0, at most one line, never a traceback."""
+    """SIGINT while rclpy, torch or the model load: exit 0, at most one line, never a traceback.  Each run waits
+    until the process has entered the node's code (numpy's extension is mapped: the handlers are installed
+    before it is imported), then interrupts it after a delay; an interrupt during the interpreter's own start-up
+    (site, .pth files) is Python's, not the node's."""
     env = {**os.environ, "ROS_DOMAIN_ID": str(DOMAIN + 30), "PYTHONUNBUFFERED": "1"}
-    for delay in (0.2, 0.7, 1.4, 2.2, 3.0):
+    for delay in (0.0, 0.3, 0.8, 1.5, 2.5):
         proc = subprocess.Popen([sys.executable, "-m", "hjrno_ros.ros.main", "--ros-args", "-p",
                                  f"model_path:={model_stem}"], env=env, stdout=subprocess.PIPE,
                                 stderr=subprocess.STDOUT, text=True)
+        maps = Path(f"/proc/{proc.pid}/maps")
+        assert wait_for(lambda p=proc, m=maps: p.poll() is not None or "_multiarray_umath" in m.read_text(), 30.0)
         time.sleep(delay)
         proc.send_signal(2)
         out, _ = proc.communicate(timeout=30.0)

@@ -111,3 +111,16 @@ def value_messages(values: np.ndarray, info: dict, stamp_ns: int, map_stamp: Any
                       MultiArrayDimension(label="x", size=nx, stride=nx)]
     arr.data = array.array("f", np.ascontiguousarray(values.T).tobytes())
     return grid, arr
+
+
+def command_type_mismatch(node: Any, in_topic: str, out_topic: str, stamped: bool) -> list[str]:
+    """Publishers of ``in_topic`` and subscribers of ``out_topic`` (other than ``node``) whose type is the other
+    Twist flavour: DDS never connects them, so nothing they send arrives.  Read from the ROS graph."""
+    want = "geometry_msgs/msg/" + ("TwistStamped" if stamped else "Twist")
+    found = []
+    for topic, endpoints in ((in_topic, node.get_publishers_info_by_topic),
+                             (out_topic, node.get_subscriptions_info_by_topic)):
+        name = node.resolve_topic_name(topic)
+        kinds = {e.topic_type for e in endpoints(name) if e.node_name != node.get_name()}
+        found += [f"{name}: {k} (this node uses {want}: enable_stamped_cmd_vel)" for k in sorted(kinds - {want})]
+    return found

@@ -4,8 +4,12 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
+from typing import Any
 
-from hjrno_ros.core.model_card import paths
+from hjrno_ros.core.model_card import ModelCard, paths
+
+CARD_LIMITS = ("a_max", "kappa_max", "v_max")  # node parameters that must agree with the model card
+LIMIT_TOLERANCE = 1e-6
 
 
 def bundled_model_candidates(name: str = "default") -> list[Path]:
@@ -41,3 +45,22 @@ def resolve_model(model_path: str) -> Path:
     looked = ", ".join(str(p) for p in bundled_model_candidates(name))
     raise ValueError(f"no bundled model {name!r} found (looked for {looked}); set the model_path parameter "
                      "to a model stem")
+
+
+def load_model(cfg: dict[str, Any]) -> tuple[ModelCard, Any, Path]:
+    """(card, learned value function, stem) for the node's parameters; the card is checked before torch and the
+    weights are loaded.  ValueError with one line."""
+    stem = resolve_model(cfg["model_path"])
+    card = ModelCard.load(stem)
+    limits = card.dynamics.as_dict()
+    for name in CARD_LIMITS:
+        if cfg[name] != -1.0 and abs(cfg[name] - limits[name]) > LIMIT_TOLERANCE:
+            raise ValueError(f"parameter {name}={cfg[name]} differs from the model card's {limits[name]} ({stem}): "
+                             "the model only knows its own limits; use -1 or retrain")
+    from hjrno_ros.learning.value_function import LearnedValueFunction  # torch: seconds, after the cheap checks
+
+    try:
+        vf = LearnedValueFunction(stem, device=cfg["device"] or None, threads=int(cfg["inference_threads"]))
+    except (ValueError, KeyError, TypeError, OSError) as err:
+        raise ValueError(f"cannot load model {stem}: {err}") from None
+    return card, vf, stem

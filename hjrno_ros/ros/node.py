@@ -31,7 +31,7 @@ from nav_msgs.msg import OccupancyGrid, Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.node import Node
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.signals import SignalHandlerOptions
@@ -39,51 +39,122 @@ from std_msgs.msg import Float32MultiArray, String
 from std_srvs.srv import SetBool
 
 from hjrno_ros.core import safety_filter
-from hjrno_ros.core.model_card import ModelCard
 from hjrno_ros.ros import messages, parameters, status
 from hjrno_ros.ros.inputs import MapData, MapInput, RobotState, StateInput
-from hjrno_ros.ros.model_files import resolve_model
+from hjrno_ros.ros.model_files import load_model
 from hjrno_ros.ros.refinement import Refinement
-from hjrno_ros.ros.value_worker import ValueData, ValueWorker, table_state
+from hjrno_ros.ros.value_worker import ValueWorker, table_state
 
 NODE_NAME = "brt_node"
-CARD_LIMITS = ("a_max", "kappa_max", "v_max")  # parameters that must agree with the model card
-LIMIT_TOLERANCE = 1e-6
-LOG_THROTTLE = 5.0  # s between repeats of one message
 
 
 class StartupError(RuntimeError):
     """The node cannot run (bad model, bad parameters); main() logs one line and exits 1."""
 
 
-class BrtNode(Node):
-    """Safety filter node; see the module docstring and docs/node.md."""
+class BrtNode(LifecycleNode):
+    """Safety filter node, managed (lifecycle); see the module docstring and docs/node.md.
+
+    configure: parameters, model, inputs, interfaces; activate: a clean state (the map is kept) and the worker;
+    deactivate: the worker stops and nothing is published; cleanup: interfaces and model are dropped.
+    ``start()`` does configure + activate (plain mode: ``autostart``)."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        try:
-            self._setup()
-        except Exception as err:  # one clear line from main(), no traceback
-            super().destroy_node()
-            if isinstance(err, StartupError):
-                raise
-            raise StartupError(f"{type(err).__name__}: {err}") from None
-
-    # ------------------------------------------------------------------ set-up
-    def _setup(self) -> None:
-        self._logged: dict[str, float] = {}
+        self._log = status.ThrottledLog(self.get_logger())
+        self._entities: list[tuple[Callable[[Any], Any], Any]] = []  # (destroy, entity) made by configure
+        self.configured = self.active = self._plain = False
+        self.startup_error = ""
+        self.type_mismatch: list[str] = []
         for name, spec in parameters.PARAMETERS.items():
             self.declare_parameter(name, spec.default, spec.descriptor())
+        self._cfg, _ = parameters.normalise({name: self.get_parameter(name).value for name in parameters.PARAMETERS})
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_post_set_parameters_callback(self._after_set_parameters)
+
+    # ------------------------------------------------------------------ lifecycle
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        try:
+            self._configure()
+        except Exception as err:  # one clear line, no traceback
+            self.startup_error = str(err) if isinstance(err, StartupError) else f"{type(err).__name__}: {err}"
+            if not self._plain:  # plain mode: main() says it once
+                self.get_logger().error(f"cannot configure: {self.startup_error}")
+            self._destroy_interfaces()
+            return TransitionCallbackReturn.FAILURE
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._reset()
+        self.values.start()
+        self.active = True
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.active = False
+        self.values.stop()
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._release()
+        return super().on_cleanup(state)
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._release()
+        return super().on_shutdown(state)
+
+    def start(self) -> None:
+        """Plain mode: configure (if needed) and activate; StartupError when configuring fails."""
+        self._plain = True
+        if not self.configured and self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
+            raise StartupError(self.startup_error)
+        if not self.active:
+            self.trigger_activate()
+
+    def stop(self) -> None:
+        """Stop working: join the worker (it publishes, so before the context goes) and the refinement."""
+        self.active = False
+        if hasattr(self, "values"):
+            self.values.stop()
+
+    def destroy_node(self) -> None:
+        self.stop()
+        super().destroy_node()
+
+    def _release(self) -> None:
+        self.stop()
+        self._destroy_interfaces()
+        self.configured = False
+        for name in ("values", "maps", "states", "vf", "card"):
+            self.__dict__.pop(name, None)
+
+    # ------------------------------------------------------------------ set-up
+    def _configure(self) -> None:
         cfg, problem = parameters.normalise({name: self.get_parameter(name).value for name in parameters.PARAMETERS})
         problem = problem or parameters.validate(cfg, startup=True)
         if problem:
             raise StartupError(problem)
         self._cfg = cfg
-        self.card, self.vf, self.model_stem = self._load_model(cfg)
+        try:
+            self.card, self.vf, self.model_stem = load_model(cfg)
+        except ValueError as err:
+            raise StartupError(str(err)) from None
         self._apply_settings(cfg)
-        self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.add_post_set_parameters_callback(self._after_set_parameters)
+        self.maps = MapInput(cfg["map_topic"])
+        self._reset()
+        self._create_interfaces(cfg)
+        self.configured = True
+        self.get_logger().info(
+            f"model {self.model_stem} ({self.card.kind}, window {self.vf.window[0]:g} x {self.vf.window[1]:g} m, "
+            f"{self.vf.shape[0]}x{self.vf.shape[1]} nodes, {self.vf.params}); epsilon {self.settings.epsilon:g} m, "
+            f"{self.settings.mode}; {cfg['cmd_vel_in_topic']} -> {cfg['cmd_vel_out_topic']} "
+            f"({'TwistStamped' if self._stamped else 'Twist'})")
 
+    def _reset(self) -> None:
+        """A clean state for an activation: inputs but the map, value table, decisions and counters."""
+        cfg = self._cfg
+        if hasattr(self, "values"):
+            self.values.stop()
         self.counts = status.Counters()
         self.command_times = status.CommandTimes()
         self.enabled = True
@@ -91,62 +162,52 @@ class BrtNode(Node):
         self._last_decision_time = -math.inf
         self._last_cmd: tuple[float, str] | None = None  # (monotonic s, header frame_id)
         self._last_nominal: tuple[float, float] | None = None  # (linear, angular) of the last filtered nominal
-        self.maps = MapInput(cfg["map_topic"])
         self.states = StateInput(cfg["odom_topic"], cfg["pose_topic"])
         refinement = (Refinement(self.vf.grid, str(self.model_stem), cfg["refine_horizon"], cfg["refine_stage"],
                                  int(cfg["refine_cpus"])) if cfg["refine_horizon"] > 0 else None)
         self.values = ValueWorker(self.vf, self.maps, self.states, lambda: self._cfg, self._publish_value, self._log,
                                   refinement)
-        self._create_interfaces(cfg)
-        self.get_logger().info(
-            f"model {self.model_stem} ({self.card.kind}, window {self.vf.window[0]:g} x {self.vf.window[1]:g} m, "
-            f"{self.vf.shape[0]}x{self.vf.shape[1]} nodes, {self.vf.params}); epsilon {self.settings.epsilon:g} m, "
-            f"{self.settings.mode}; {cfg['cmd_vel_in_topic']} -> {cfg['cmd_vel_out_topic']} "
-            f"({'TwistStamped' if self._stamped else 'Twist'})")
+
+    def _keep(self, destroy: Callable[[Any], Any], entity: Any) -> Any:
+        self._entities.append((destroy, entity))
+        return entity
+
+    def _destroy_interfaces(self) -> None:
+        for destroy, entity in reversed(self._entities):
+            destroy(entity)
+        self._entities.clear()
 
     def _create_interfaces(self, cfg: dict[str, Any]) -> None:
         self._stamped = bool(cfg["enable_stamped_cmd_vel"])
         cmd_type = TwistStamped if self._stamped else Twist
         cmd_group = MutuallyExclusiveCallbackGroup()  # command in/out and the stop timer: one cmd_vel writer
         state_group, map_group, misc_group = (MutuallyExclusiveCallbackGroup() for _ in range(3))
-        self._cmd_pub = self.create_publisher(cmd_type, cfg["cmd_vel_out_topic"], 10)
-        self._grid_pub = self.create_publisher(OccupancyGrid, cfg["value_grid_topic"], messages.LATCHED)
-        self._value_pub = self.create_publisher(Float32MultiArray, cfg["value_topic"], 1)
-        self._status_pub = self.create_publisher(String, cfg["status_topic"], 10)
-        self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(OccupancyGrid, cfg["map_topic"], self._guard(self._on_map), messages.LATCHED,
-                                 callback_group=map_group)
-        self.create_subscription(Odometry, cfg["odom_topic"], self._guard(self._on_odom), qos_profile_sensor_data,
-                                 callback_group=state_group)
+        pub, sub, timer = self.destroy_publisher, self.destroy_subscription, self.destroy_timer
+        self._cmd_pub = self._keep(pub, self.create_publisher(cmd_type, cfg["cmd_vel_out_topic"], 10))
+        self._grid_pub = self._keep(pub, self.create_publisher(OccupancyGrid, cfg["value_grid_topic"],
+                                                               messages.LATCHED))
+        self._value_pub = self._keep(pub, self.create_publisher(Float32MultiArray, cfg["value_topic"], 1))
+        self._status_pub = self._keep(pub, self.create_publisher(String, cfg["status_topic"], 10))
+        self._diag_pub = self._keep(pub, self.create_publisher(DiagnosticArray, "/diagnostics", 10))
+        self._keep(sub, self.create_subscription(OccupancyGrid, cfg["map_topic"], self._guard(self._on_map),
+                                                 messages.LATCHED, callback_group=map_group))
+        self._keep(sub, self.create_subscription(Odometry, cfg["odom_topic"], self._guard(self._on_odom),
+                                                 qos_profile_sensor_data, callback_group=state_group))
         if cfg["pose_topic"]:
-            self.create_subscription(PoseWithCovarianceStamped, cfg["pose_topic"], self._guard(self._on_pose),
-                                     messages.LATCHED, callback_group=state_group)
-        self.create_subscription(cmd_type, cfg["cmd_vel_in_topic"], self._on_cmd, 10, callback_group=cmd_group)
-        self._control_timer = self.create_timer(cfg["control_period"], self._guard(self._on_control_timer),
-                                                callback_group=cmd_group)
-        self.create_timer(status.STATUS_PERIOD, self._guard(self._publish_status), callback_group=misc_group)
-        self.create_timer(status.DIAGNOSTICS_PERIOD, self._guard(self._publish_diagnostics), callback_group=misc_group)
-        self.create_service(SetBool, "~/enable", self._on_enable, callback_group=misc_group)
-
-    def _load_model(self, cfg: dict[str, Any]) -> tuple[ModelCard, Any, Any]:
-        """(card, value function, stem): the card is checked before torch and the weights are loaded."""
-        try:
-            stem = resolve_model(cfg["model_path"])
-            card = ModelCard.load(stem)
-        except ValueError as err:
-            raise StartupError(str(err)) from None
-        limits = card.dynamics.as_dict()
-        for name in CARD_LIMITS:
-            if cfg[name] != -1.0 and abs(cfg[name] - limits[name]) > LIMIT_TOLERANCE:
-                raise StartupError(f"parameter {name}={cfg[name]} differs from the model card's {limits[name]} "
-                                   f"({stem}): the model only knows its own limits; use -1 or retrain")
-        from hjrno_ros.learning.value_function import LearnedValueFunction  # torch: seconds, after the cheap checks
-
-        try:
-            vf = LearnedValueFunction(stem, device=cfg["device"] or None, threads=int(cfg["inference_threads"]))
-        except (ValueError, KeyError, TypeError, OSError) as err:
-            raise StartupError(f"cannot load model {stem}: {err}") from None
-        return card, vf, stem
+            self._keep(sub, self.create_subscription(PoseWithCovarianceStamped, cfg["pose_topic"],
+                                                     self._guard(self._on_pose), messages.LATCHED,
+                                                     callback_group=state_group))
+        self._keep(sub, self.create_subscription(cmd_type, cfg["cmd_vel_in_topic"], self._on_cmd, 10,
+                                                 callback_group=cmd_group))
+        self._control_timer = self._keep(timer, self.create_timer(cfg["control_period"],
+                                                                  self._guard(self._on_control_timer),
+                                                                  callback_group=cmd_group))
+        self._keep(timer, self.create_timer(status.STATUS_PERIOD, self._guard(self._publish_status),
+                                            callback_group=misc_group))
+        self._keep(timer, self.create_timer(status.DIAGNOSTICS_PERIOD, self._guard(self._publish_diagnostics),
+                                            callback_group=misc_group))
+        self._keep(self.destroy_service, self.create_service(SetBool, "~/enable", self._on_enable,
+                                                             callback_group=misc_group))
 
     def _guard(self, callback: Callable[..., None]) -> Callable[..., None]:
         """An exception in any callback would stop the executor (and the node): log it instead."""
@@ -158,36 +219,6 @@ class BrtNode(Node):
                 self._log("error", f"{callback.__name__} failed: {type(err).__name__}: {err}")
 
         return run
-
-    def _log(self, level: str, text: str) -> None:
-        """Log ``text`` at ``level``, each distinct text at most once per LOG_THROTTLE s."""
-        now = time.monotonic()
-        if now - self._logged.get(text, -math.inf) < LOG_THROTTLE:
-            return
-        if len(self._logged) > 256:
-            self._logged.clear()
-        self._logged[text] = now
-        logger = self.get_logger()  # rclpy wants one severity per call site: one call each
-        if level == "error":
-            logger.error(text)
-        elif level == "warning":
-            logger.warning(text)
-        else:
-            logger.info(text)
-
-    # ------------------------------------------------------------------ lifecycle
-    def start(self) -> None:
-        """Start working: the value worker's thread."""
-        self.values.start()
-
-    def stop(self) -> None:
-        """Stop working: join the worker (it publishes, so before the context goes) and the refinement."""
-        if hasattr(self, "values"):
-            self.values.stop()
-
-    def destroy_node(self) -> None:
-        self.stop()
-        super().destroy_node()
 
     # ------------------------------------------------------------------ parameters
     def _apply_settings(self, cfg: dict[str, Any]) -> None:
@@ -211,7 +242,7 @@ class BrtNode(Node):
         cfg, problem = self._merged(params)
         # the start-up sentinel epsilon = -1 may stay while other parameters change, but cannot be set live
         problem = problem or parameters.validate(cfg, startup=all(p.name != "epsilon" for p in params))
-        if problem is None:
+        if problem is None and self.configured:
             try:
                 parameters.filter_settings(self.card, cfg)
             except ValueError as err:
@@ -221,11 +252,13 @@ class BrtNode(Node):
     def _after_set_parameters(self, params: list[Parameter]) -> None:
         cfg, _ = self._merged(params)
         names = {p.name for p in params}
-        self._apply_settings(cfg)
         self._cfg = cfg
+        if not self.configured:  # read again by configure
+            return
+        self._apply_settings(cfg)
         if "control_period" in names:
             self._control_timer.timer_period_ns = int(cfg["control_period"] * 1e9)
-        if names & {"occupied_threshold", "unknown_is_obstacle", "inflation_radius"}:
+        if names & {"occupied_threshold", "costmap_threshold", "unknown_is_obstacle", "inflation_radius"}:
             self.maps.dirty = True
             self.values.wake()
         self.get_logger().info("parameters updated: " + ", ".join(f"{p.name}={p.value}" for p in params))
@@ -278,7 +311,10 @@ class BrtNode(Node):
         return messages.command_message(linear, angular, self._stamped, header, stamp, frame_id)
 
     def _on_cmd(self, msg: Twist | TwistStamped) -> None:
-        """Nominal command in, filtered command out; fast (no waiting on inference), never raises."""
+        """Nominal command in, filtered command out; fast (no waiting on inference), never raises.  Inactive:
+        nothing is published."""
+        if not self.active:
+            return
         t = msg.twist if self._stamped else msg
         if not messages.finite(t.linear.x, t.linear.y, t.linear.z, t.angular.x, t.angular.y, t.angular.z):
             self.counts.add("cmd")
@@ -306,13 +342,7 @@ class BrtNode(Node):
             self._cmd_pub.publish(self._command(0.0, 0.0, "", header))
             self._record(safety_filter.stop(math.nan, reason), now, stop=True)
             return
-        state, val = data["state"], data["value"]
-        p = self.vf.params
-        s = table_state(state, val.theta, p.v_min, p.v_max)
-        values, grads = val.table.value_and_gradient(s)
-        refined = val.source == "refined" and val.horizon >= self.refined_from
-        settings = self.refined_settings if refined else self.settings
-        decision = safety_filter.filter_command(p, settings, s, float(values[0]), grads[0], t.linear.x, t.angular.z)
+        decision = self._decide(data, (t.linear.x, t.angular.z))
         planar = t.linear.y == t.linear.z == t.angular.x == t.angular.y == 0.0  # a planar base has no other axes
         self._last_nominal = (t.linear.x, t.angular.z)
         if decision.intervened or decision.clipped or not planar:
@@ -335,7 +365,7 @@ class BrtNode(Node):
     def _on_control_timer(self) -> None:
         """While fail-closed and the last nominal command is recent, keep the robot stopped."""
         last = self._last_cmd
-        if not self.enabled or last is None:
+        if not (self.active and self.enabled) or last is None:
             return
         now = time.monotonic()
         if now - last[0] > self._cfg["stop_pub_timeout"]:
@@ -362,60 +392,36 @@ class BrtNode(Node):
         """The status published as JSON on ``status_topic`` (also used by the diagnostics)."""
         now = time.monotonic()
         reason, data = self.check(now)
-        state: RobotState | None = data.get("state")
-        val: ValueData | None = data.get("value")
-        value = None
-        if state is not None and val is not None:
-            p = self.vf.params
-            value = float(val.table.value(table_state(state, val.theta, p.v_min, p.v_max))[0])
-        mode, why = status.mode(self.enabled, reason, self._present_decision(now, data),
-                                value if value is not None else math.nan, self.settings.epsilon)
-        m, odom, latest = self.maps.current, self.states.odom, self.values.value
-        counts = self.counts.snapshot()
-        refinement = self.values.refinement
-        robot = None if state is None else {"x": round(state.x, 4), "y": round(state.y, 4), "v": round(state.v, 4),
-                                            "theta": round(state.theta, 4), "frame_id": state.frame_id}
-        return {
-            "state": mode, "reason": why, "value": value, "robot": robot,
-            "epsilon": self.settings.epsilon,
-            "epsilon_calibrated": self.card.epsilon,
-            "epsilon_below_calibrated": self._epsilon_below_card(),
-            "refine_epsilon": self.refined_settings.epsilon if refinement is not None else None,
-            "refine_epsilon_from_s": self.refined_from if refinement is not None else None,
-            "filter_mode": self.settings.mode,
-            "inference_latency_ms": round(latest.latency_ms, 2) if latest else None,
-            "filter_ms": self.command_times.summary(),
-            "value_age_s": round(now - latest.computed, 3) if latest else None,
-            "odom_age_s": round(now - odom.received, 3) if odom else None,
-            "map_age_s": round(now - m.received, 3) if m else None,
-            "map_stamp": [m.stamp.sec, m.stamp.nanosec] if m else None,
-            "last_map_error": self.maps.error,
-            "dropped": {**{k: counts[k] for k in ("cmd", "odom", "pose")}, "map": self.maps.rejected},
-            "counts": {**{k: counts[k] for k in ("commands", "interventions", "clipped", "stops")},
-                       "inferences": self.values.inferences, "inference_errors": self.values.errors},
-            "value_grid": latest.grid_info if latest else None,
-            "value_source": latest.source if latest else None,
-            "refinement": refinement.status(m) if refinement is not None else None,
-            "model": str(self.model_stem),
-            "symmetry_average": self.card.symmetry_average,
-        }
+        return status.build(self, now, reason, data, self._present_decision(now, data))
 
     def _present_decision(self, now: float, data: dict[str, Any]) -> safety_filter.Decision | None:
         """What the filter would do now with the last nominal command, if one came within stop_pub_timeout."""
         recent = self._last_cmd is not None and now - self._last_cmd[0] <= self._cfg["stop_pub_timeout"]
         if not recent or self._last_nominal is None or "value" not in data:
             return None
+        return self._decide(data, self._last_nominal)
+
+    def _decide(self, data: dict[str, Any], nominal: tuple[float, float]) -> safety_filter.Decision:
+        """The filter's decision on ``nominal`` (linear, angular) at the checked state and value table."""
         state, val, p = data["state"], data["value"], self.vf.params
         s = table_state(state, val.theta, p.v_min, p.v_max)
         values, grads = val.table.value_and_gradient(s)
         refined = val.source == "refined" and val.horizon >= self.refined_from
         settings = self.refined_settings if refined else self.settings
-        return safety_filter.filter_command(p, settings, s, float(values[0]), grads[0], *self._last_nominal)
+        return safety_filter.filter_command(p, settings, s, float(values[0]), grads[0], *nominal)
 
     def _publish_status(self) -> None:
-        self._status_pub.publish(String(data=json.dumps(self.status())))
+        if self.active:
+            self._status_pub.publish(String(data=json.dumps(self.status())))
 
     def _publish_diagnostics(self) -> None:
+        if not self.active:
+            return
+        found = messages.command_type_mismatch(self, self._cfg["cmd_vel_in_topic"], self._cfg["cmd_vel_out_topic"],
+                                               self._stamped)
+        if found and found != self.type_mismatch:
+            self.get_logger().warning("command type mismatch: " + "; ".join(found))
+        self.type_mismatch = found
         self._diag_pub.publish(status.diagnostics(self.status(), self.get_name(), self.get_clock().now().to_msg()))
 
 
@@ -426,21 +432,29 @@ def main(argv: list[str] | None = None) -> int:
     try:
         rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
         node = BrtNode()
-    except StartupError as err:
-        logger.fatal(f"cannot start: {err}")
-        rclpy.try_shutdown()
-        return 1
     except KeyboardInterrupt:
         logger.info("interrupted during start-up")
         rclpy.try_shutdown()
         return 0
+    except Exception as err:  # e.g. a parameter override of the wrong type: one line
+        logger.fatal(f"cannot start: {type(err).__name__}: {err}")
+        rclpy.try_shutdown()
+        return 1
     # One executor thread: measured here, a relay's p95 latency was 1.4 ms single-threaded vs 6.6 ms
     # with rclpy's MultiThreadedExecutor. Inference runs in the node's own worker thread anyway.
     executor = SingleThreadedExecutor()
     executor.add_node(node)
+    code = 0
     try:
-        node.start()
+        if node.get_parameter("autostart").value:
+            node.start()  # plain mode; with autostart false a lifecycle manager configures and activates
         executor.spin()
+    except StartupError as err:
+        from hjrno_ros.ros.main import interrupted
+
+        if not interrupted():  # an interrupt during the model load can surface as an import error
+            logger.fatal(f"cannot start: {err}")
+            code = 1
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
@@ -450,7 +464,7 @@ def main(argv: list[str] | None = None) -> int:
         executor.shutdown(timeout_sec=2.0)
         node.destroy_node()
         rclpy.try_shutdown()
-    return 0
+    return code
 
 
 if __name__ == "__main__":

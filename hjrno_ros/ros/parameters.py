@@ -37,7 +37,10 @@ class Param:
         return ParameterDescriptor(description=self.description, **extra)
 
 
+MAP_KINDS = ("occupancy", "costmap")
 PARAMETERS: dict[str, Param] = {
+    "autostart": Param(True, "configure and activate at start (plain mode); false: wait for a lifecycle manager "
+                             "(Nav2's, with bond_timeout 0)", read_only=True),
     "map_topic": Param("map", "OccupancyGrid topic (reliable, transient local, depth 1)", read_only=True),
     "odom_topic": Param("odom", "Odometry topic (sensor-data QoS); speed = twist.linear.x", read_only=True),
     "pose_topic": Param("", "optional PoseWithCovarianceStamped in the map frame (e.g. amcl_pose); '' = pose from "
@@ -68,7 +71,11 @@ PARAMETERS: dict[str, Param] = {
     "kappa_max": Param(-1.0, "1/m: -1 = model card; any other value must equal the card's", read_only=True),
     "v_max": Param(-1.0, "m/s: -1 = model card; any other value must equal the card's", read_only=True),
     "speed_tolerance": Param(0.05, "m/s: speeds this far outside the model's [v_min, v_max] fail closed", 0.0, 1.0),
-    "occupied_threshold": Param(50, "occupancy >= threshold is an obstacle", 0, 100),
+    "map_kind": Param("occupancy", "occupancy (map_server: cells >= occupied_threshold are obstacles) | costmap "
+                                   "(a Nav2 costmap as OccupancyGrid: cells >= costmap_threshold)", read_only=True),
+    "occupied_threshold": Param(50, "occupancy >= threshold is an obstacle (map_kind occupancy)", 0, 100),
+    "costmap_threshold": Param(99, "map_kind costmap: cost >= threshold is an obstacle; 99 = Nav2's inscribed cost "
+                                   "(the footprint's inscribed radius is already inflated), 100 = lethal only", 0, 100),
     "unknown_is_obstacle": Param(True, "unknown cells (-1) and space beyond the map are obstacles"),
     "inflation_radius": Param(-1.0, "m: obstacles grown by this much before inference (V0 = signed distance - "
                                     "radius); -1 = h/sqrt(2) of the model grid (makes the grid's V0 conservative); "
@@ -125,6 +132,8 @@ def validate(cfg: dict[str, Any], startup: bool = False) -> str | None:
     eps = cfg["epsilon"]
     if eps < 0 and not (startup and eps == -1.0):
         return f"epsilon must be finite and >= 0 (-1 = model card, at startup only), got {eps}"
+    if cfg["map_kind"] not in MAP_KINDS:
+        return f"map_kind must be one of {list(MAP_KINDS)}, got {cfg['map_kind']!r}"
     if cfg["filter_mode"] not in safety_filter.MODES:
         return f"filter_mode must be one of {list(safety_filter.MODES)}, got {cfg['filter_mode']!r}"
     r = cfg["inflation_radius"]
@@ -134,6 +143,11 @@ def validate(cfg: dict[str, Any], startup: bool = False) -> str | None:
     if not (r_eps >= 0 or r_eps == -1.0):
         return f"refine_epsilon must be >= 0, or -1 (the value of epsilon), got {r_eps}"
     return None
+
+
+def obstacle_threshold(cfg: dict[str, Any]) -> int:
+    """The occupancy value from which a map cell is an obstacle, for the map's kind."""
+    return int(cfg["costmap_threshold"] if cfg["map_kind"] == "costmap" else cfg["occupied_threshold"])
 
 
 def filter_settings(card: ModelCard, cfg: dict[str, Any]) -> safety_filter.FilterSettings:

@@ -4,17 +4,21 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import math
 import threading
+import time
 from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
+from hjrno_ros.ros.value_worker import table_state
+
 STATUS_PERIOD = 0.1  # s
 DIAGNOSTICS_PERIOD = 1.0  # s
 LEVELS = {"ok": DiagnosticStatus.OK, "intervening": DiagnosticStatus.OK, "bypassed": DiagnosticStatus.WARN,
           "unsafe_idle": DiagnosticStatus.WARN, "fail_closed": DiagnosticStatus.ERROR}
-NESTED = ("dropped", "counts", "value_grid", "robot", "filter_ms", "refinement")
+NESTED = ("dropped", "counts", "value_grid", "robot", "filter_ms", "refinement", "cmd_type_mismatch")
 
 
 @dataclasses.dataclass
@@ -56,6 +60,29 @@ class CommandTimes:
                 "max": round(float(times.max()), 3)}
 
 
+class ThrottledLog:
+    """``log(level, text)``: each distinct text at most once per ``period`` s (rclpy wants one severity per call
+    site, so each level has its own call)."""
+
+    def __init__(self, logger: Any, period: float = 5.0) -> None:
+        self.logger, self.period = logger, period
+        self._last: dict[str, float] = {}
+
+    def __call__(self, level: str, text: str) -> None:
+        now = time.monotonic()
+        if now - self._last.get(text, -math.inf) < self.period:
+            return
+        if len(self._last) > 256:
+            self._last.clear()
+        self._last[text] = now
+        if level == "error":
+            self.logger.error(text)
+        elif level == "warning":
+            self.logger.warning(text)
+        else:
+            self.logger.info(text)
+
+
 def mode(enabled: bool, reason: str, decision: Any, value: float, epsilon: float) -> tuple[str, str]:
     """(state, reason) of the status, for the present: bypassed; fail_closed; with a recent nominal command,
     intervening or ok as the filter would decide now (``decision``); without one, unsafe_idle when
@@ -71,15 +98,57 @@ def mode(enabled: bool, reason: str, decision: Any, value: float, epsilon: float
     return "ok", "pass"
 
 
+def build(node: Any, now: float, reason: str, data: dict[str, Any], decision: Any) -> dict[str, Any]:
+    """The status JSON of a configured node (docs/node.md, "Status JSON")."""
+    state, val = data.get("state"), data.get("value")
+    value = None
+    if state is not None and val is not None:
+        p = node.vf.params
+        value = float(val.table.value(table_state(state, val.theta, p.v_min, p.v_max))[0])
+    name, why = mode(node.enabled, reason, decision, value if value is not None else math.nan,
+                     node.settings.epsilon)
+    m, odom, latest = node.maps.current, node.states.odom, node.values.value
+    counts = node.counts.snapshot()
+    refinement = node.values.refinement
+    robot = None if state is None else {"x": round(state.x, 4), "y": round(state.y, 4), "v": round(state.v, 4),
+                                        "theta": round(state.theta, 4), "frame_id": state.frame_id}
+    return {
+        "state": name, "reason": why, "value": value, "robot": robot,
+        "epsilon": node.settings.epsilon,
+        "epsilon_calibrated": node.card.epsilon,
+        "epsilon_below_calibrated": node.card.epsilon is not None and node.settings.epsilon < node.card.epsilon,
+        "refine_epsilon": node.refined_settings.epsilon if refinement is not None else None,
+        "refine_epsilon_from_s": node.refined_from if refinement is not None else None,
+        "filter_mode": node.settings.mode,
+        "inference_latency_ms": round(latest.latency_ms, 2) if latest else None,
+        "filter_ms": node.command_times.summary(),
+        "value_age_s": round(now - latest.computed, 3) if latest else None,
+        "odom_age_s": round(now - odom.received, 3) if odom else None,
+        "map_age_s": round(now - m.received, 3) if m else None,
+        "map_stamp": [m.stamp.sec, m.stamp.nanosec] if m else None,
+        "last_map_error": node.maps.error,
+        "cmd_type_mismatch": list(node.type_mismatch),
+        "dropped": {**{k: counts[k] for k in ("cmd", "odom", "pose")}, "map": node.maps.rejected},
+        "counts": {**{k: counts[k] for k in ("commands", "interventions", "clipped", "stops")},
+                   "inferences": node.values.inferences, "inference_errors": node.values.errors},
+        "value_grid": latest.grid_info if latest else None,
+        "value_source": latest.source if latest else None,
+        "refinement": refinement.status(m) if refinement is not None else None,
+        "model": str(node.model_stem),
+        "symmetry_average": node.card.symmetry_average,
+    }
+
+
 def diagnostics(status: dict[str, Any], name: str, stamp: Any) -> DiagnosticArray:
     """The status as one DiagnosticStatus: OK (ok, intervening), WARN (bypassed), ERROR (fail_closed)."""
     flat = {k: v for k, v in status.items() if k not in NESTED}
-    if status.get("epsilon_below_calibrated"):
+    if status.get("epsilon_below_calibrated") or status.get("cmd_type_mismatch"):
         entry_level = max(LEVELS[status["state"]], DiagnosticStatus.WARN)
     else:
         entry_level = LEVELS[status["state"]]
     flat.update({f"dropped_{k}": v for k, v in status["dropped"].items()})
     flat.update(status["counts"])
+    flat["cmd_type_mismatch"] = "; ".join(status["cmd_type_mismatch"])
     entry = DiagnosticStatus(level=entry_level, name=f"{name}: BRT safety filter",
                              message=status["reason"], hardware_id="hjrno_ros",
                              values=[KeyValue(key=k, value=str(v)) for k, v in flat.items()])

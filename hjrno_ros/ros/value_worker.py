@@ -24,6 +24,7 @@ from hjrno_ros.core import geometry
 from hjrno_ros.core.grids import wrap_angle
 from hjrno_ros.core.value_table import ValueTable
 from hjrno_ros.ros.inputs import MapData, MapInput, RobotState, StateInput
+from hjrno_ros.ros.parameters import obstacle_threshold
 from hjrno_ros.ros.refinement import Refinement
 
 INFERENCE_NICE = 10  # the worker thread's nice value above the node's
@@ -83,6 +84,10 @@ class ValueWorker:
 
     # ------------------------------------------------------------------ thread
     @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    @property
     def native_id(self) -> int | None:
         return self._thread.native_id if self._thread is not None else None
 
@@ -136,7 +141,7 @@ class ValueWorker:
 
     def step(self) -> None:
         cfg = self.cfg()
-        problem = self.maps.install(int(cfg["occupied_threshold"]), bool(cfg["unknown_is_obstacle"]))
+        problem = self.maps.install(obstacle_threshold(cfg), bool(cfg["unknown_is_obstacle"]))
         if problem:
             self.log("warning", f"map rejected: {problem}")
         m = self.maps.current
