@@ -20,9 +20,9 @@ import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, GroupAction
+from launch.actions import DeclareLaunchArgument
 from launch.substitutions import LaunchConfiguration
-from launch_ros.actions import Node, PushRosNamespace
+from launch_ros.actions import Node
 from launch_ros.descriptions import ParameterFile
 
 
@@ -71,35 +71,34 @@ def generate_launch_description():
             description='Odometry topic'),
     ]
 
-    nodes = GroupAction(
-        actions=[
-            PushRosNamespace(namespace),
-            Node(
-                package='hjrno_ros',
-                executable='brt_node',
-                name='brt_node',
-                output='screen',
-                parameters=[
-                    ParameterFile(params_file, allow_substs=True),
-                    {'use_sim_time': use_sim_time, 'autostart': False},
-                ],
-                arguments=['--ros-args', '--log-level', log_level],
-                remappings=remappings,
-            ),
-            Node(
-                package='nav2_lifecycle_manager',
-                executable='lifecycle_manager',
-                name='lifecycle_manager_brt',
-                output='screen',
-                parameters=[
-                    {'use_sim_time': use_sim_time},
-                    {'autostart': autostart},
-                    {'node_names': ['brt_node']},
-                    {'bond_timeout': 0.0},
-                ],
-                arguments=['--ros-args', '--log-level', log_level],
-            ),
-        ]
-    )
+    nodes = [
+        Node(
+            package='hjrno_ros',
+            executable='brt_node',
+            name='brt_node',
+            namespace=namespace,
+            output='screen',
+            parameters=[
+                ParameterFile(params_file, allow_substs=True),
+                {'use_sim_time': use_sim_time, 'autostart': False},
+            ],
+            arguments=['--ros-args', '--log-level', log_level],
+            remappings=remappings,
+        ),
+        Node(
+            package='nav2_lifecycle_manager',
+            executable='lifecycle_manager',
+            name='lifecycle_manager_brt',
+            namespace=namespace,
+            output='screen',
+            parameters=[
+                {'use_sim_time': use_sim_time},
+                {'autostart': autostart},
+                {'node_names': ['brt_node']},
+                {'bond_timeout': 0.0},
+            ],
+            arguments=['--ros-args', '--log-level', log_level],
+        ),
+    ]
 
-    return LaunchDescription([*arguments, nodes])
+    return LaunchDescription([*arguments, *nodes])

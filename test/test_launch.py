@@ -93,6 +93,7 @@ def test_launch_file_starts_the_packages_brt_node_inactive(tree):
                                                           ("map_topic", "map"), ("odom_topic", "odom"))}
     assert remap == {topic: ("arg", arg) for topic, arg in defaults.items()}
     assert brt["remappings"] == ("name", "remappings")
+    assert brt["namespace"] == nodes["lifecycle_manager_brt"]["namespace"] == ("arg", "namespace")
 
 
 def test_lifecycle_manager_without_bond(tree):
