@@ -50,7 +50,7 @@ def test_occupancy_signed_distance_is_resolution_and_origin_aware():
     res, origin = 0.05, (-2.0, 1.0)
     occ = np.zeros((80, 60), np.int8)  # [ix, iy]: 4 m x 3 m
     occ[30:40, 20:30] = 100  # a 0.5 m square at x in [-0.5, 0), y in [2, 2.5)
-    sd = geo.occupancy_signed_distance(occ, res)
+    sd = geo.occupancy_signed_distance(occ, res, unknown_is_obstacle=False)  # the square alone, not the map's edge
     # A point 1 m to the right of the square's right edge is 1 m away (within a cell).
     p = np.array([[0.0 + 1.0, 2.25]])
     assert abs(geo.sample_raster(sd, origin, res, p)[0] - 1.0) < res

@@ -262,10 +262,11 @@ def sample_raster(raster: np.ndarray, origin: tuple[float, float], resolution: f
     ij = (pts - np.asarray(origin, float)) / resolution - 0.5
     coords = np.moveaxis(ij, -1, 0).reshape(2, -1)
     n = np.asarray(raster.shape)
+    coords = np.clip(coords, 0.0, (n - 1)[:, None])  # "nearest" beyond the outermost centres; no int overflow
     finite = np.isfinite(coords).all(0)
     if finite.any():
-        lo = np.clip(np.floor(coords[:, finite].min(1)).astype(int) - 1, 0, n - 1)
-        hi = np.clip(np.ceil(coords[:, finite].max(1)).astype(int) + 2, lo + 1, n)
+        lo = np.floor(coords[:, finite].min(1)).astype(int)
+        hi = np.minimum(np.floor(coords[:, finite].max(1)).astype(int) + 2, n)
     else:
         lo, hi = np.zeros(2, int), np.minimum(n, 1)
     block = np.asarray(raster[lo[0]:hi[0], lo[1]:hi[1]], float)

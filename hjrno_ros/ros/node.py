@@ -224,12 +224,14 @@ class BrtNode(LifecycleNode):
     def _apply_settings(self, cfg: dict[str, Any]) -> None:
         self.settings = parameters.filter_settings(self.card, cfg)
         self.refined_settings, self.refined_from = parameters.refined_filter_settings(self.card, self.settings, cfg)
-        if self._epsilon_below_card():
+        if self.epsilon_below_calibrated:
             self.get_logger().warning(
                 f"epsilon {self.settings.epsilon:g} m is below the model card's calibrated {self.card.epsilon:g} m: "
                 "the calibrated false-safe guarantee does not hold")
 
-    def _epsilon_below_card(self) -> bool:
+    @property
+    def epsilon_below_calibrated(self) -> bool:
+        """ε set below the card's calibrated margin: its false-safe guarantee is void."""
         return self.card.epsilon is not None and self.settings.epsilon < self.card.epsilon
 
     def _merged(self, params: list[Parameter]) -> tuple[dict[str, Any], str | None]:
@@ -242,11 +244,6 @@ class BrtNode(LifecycleNode):
         cfg, problem = self._merged(params)
         # the start-up sentinel epsilon = -1 may stay while other parameters change, but cannot be set live
         problem = problem or parameters.validate(cfg, startup=all(p.name != "epsilon" for p in params))
-        if problem is None and self.configured:
-            try:
-                parameters.filter_settings(self.card, cfg)
-            except ValueError as err:
-                problem = str(err)
         return SetParametersResult(successful=problem is None, reason=problem or "")
 
     def _after_set_parameters(self, params: list[Parameter]) -> None:

@@ -116,7 +116,7 @@ def build(node: Any, now: float, reason: str, data: dict[str, Any], decision: An
         "state": name, "reason": why, "value": value, "robot": robot,
         "epsilon": node.settings.epsilon,
         "epsilon_calibrated": node.card.epsilon,
-        "epsilon_below_calibrated": node.card.epsilon is not None and node.settings.epsilon < node.card.epsilon,
+        "epsilon_below_calibrated": node.epsilon_below_calibrated,
         "refine_epsilon": node.refined_settings.epsilon if refinement is not None else None,
         "refine_epsilon_from_s": node.refined_from if refinement is not None else None,
         "filter_mode": node.settings.mode,
