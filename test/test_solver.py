@@ -58,7 +58,7 @@ def test_rollouts_from_safe_states_never_collide(disk_coarse, disturbance):
     x0 = random_car_states(rng, 6000, 4.0)
     safe = x0[table.value(x0) > 0.02][:600]
     control, worst = simulation.car_optimal_feedback(params, table)
-    noise = worst if disturbance == "worst" else simulation.ball_noise(params.d_max, rng)
+    noise = worst if disturbance == "worst" else simulation.car_random_disturbance(params, rng)
     out = simulation.simulate(simulation.car_dynamics(params), control, noise, problem.clearance, safe, 10.0,
                               dt=0.02, wrap=simulation.wrap_car)
     assert len(safe) == 600

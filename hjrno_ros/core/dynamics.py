@@ -6,6 +6,13 @@ the dynamics f(x, u, d), the optimal (value-maximising) control and the worst
 :mod:`hjrno_ros.truth.systems` call the same functions with ``xp=jax.numpy``, so the ground
 truth, the simulator and the safety filter cannot drift apart.  This module imports numpy only.
 
+The car (docs/design.md, "Robot models"): ẋ = v cos θ + d₁, ẏ = v sin θ + d₂, v̇ = u₁, θ̇ = v·u₂,
+|u₁| ≤ a_max, |u₂| ≤ κ_max, v ∈ [v_min, v_max] (v_min < 0: the base reverses), and a position
+disturbance bounded by a tracking error that grows with speed, ‖d‖ ≤ δ·|v| + d₀.  Two named
+configurations: :meth:`CarParams.product` (δ = 0.1, d₀ = 0: a stopped robot stays stopped) and
+:meth:`CarParams.paper` (δ = 0, d₀ = 0.1 m/s: the HJRNO paper's benchmark car, the default, which
+the reproduction experiments, their datasets and the bundled models use).
+
 Arrays: a state is ``(..., n)`` with the last axis in state order, (x, y, v, θ) for the car and
 (x, y, ψ) for Air3D; gradients, controls and disturbances follow the same rule.  SI units.
 """
@@ -14,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -21,6 +29,10 @@ import numpy as np
 Array = Any
 
 _EDGE_TOL = 1e-6  # relative tolerance for "the speed sits on its limit"
+CAR_MODEL = "dynamic_dubins_car"  # the card's dynamics.model: the equations above, curvature control
+# A card written before the product model: {a_max, kappa_max, d_max, v_min, v_max}, the paper's
+# disturbance ‖d‖ ≤ d_max, i.e. d₀ = d_max with δ = 0 (CarParams.from_dict translates it).
+LEGACY_CAR_FIELDS = ("a_max", "kappa_max", "d_max", "v_min", "v_max")
 
 
 def _check(cond: bool, message: str) -> None:
@@ -33,15 +45,32 @@ def _concrete(values: tuple) -> bool:
     return all(isinstance(v, (int, float, np.floating, np.integer)) for v in values)
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, init=False)
 class CarParams:
-    """Limits of the dynamic Dubins car (defaults: docs/design.md, "Dynamics")."""
+    """Limits and disturbance bound of the dynamic Dubins car (docs/design.md, "Robot models").
+
+    ``CarParams()`` is the paper's car (:meth:`paper`); :meth:`product` is the product robot.  The
+    paper's name ``d_max`` is accepted as a keyword (it means d₀ with δ = 0) and readable while
+    δ = 0; with a speed-dependent bound use :func:`car_disturbance_bound`.
+    """
 
     a_max: float = 1.0  # |u1| ≤ a_max, m/s²
     kappa_max: float = 1.0  # |u2| ≤ κ_max, 1/m
-    d_max: float = 0.1  # ‖d‖ ≤ d_max, m/s
-    v_min: float = 0.0  # m/s
+    d0: float = 0.1  # ‖d‖ ≤ δ·|v| + d₀: the part at rest, m/s
+    v_min: float = 0.0  # m/s; < 0 allowed (a base that reverses)
     v_max: float = 1.0  # m/s
+    tracking_error: float = 0.0  # δ, dimensionless: the part that grows with |v|
+
+    def __init__(self, a_max: float = 1.0, kappa_max: float = 1.0, d0: float | None = None, v_min: float = 0.0,
+                 v_max: float = 1.0, tracking_error: float = 0.0, *, d_max: float | None = None):
+        if d_max is not None:
+            _check(d0 is None, "give d0 or the paper's d_max, not both")
+            _check(tracking_error == 0, "d_max is the paper's speed-independent bound: use d0 with tracking_error")
+            d0 = d_max
+        values = (a_max, kappa_max, 0.1 if d0 is None else d0, v_min, v_max, tracking_error)
+        for f, value in zip(dataclasses.fields(self), values, strict=True):
+            object.__setattr__(self, f.name, value)
+        self.__post_init__()
 
     def __post_init__(self) -> None:
         values = dataclasses.astuple(self)
@@ -50,12 +79,63 @@ class CarParams:
         _check(all(math.isfinite(v) for v in values), f"car parameters must be finite: {self}")
         _check(self.a_max > 0, f"a_max must be > 0, got {self.a_max}")
         _check(self.kappa_max > 0, f"kappa_max must be > 0, got {self.kappa_max}")
-        _check(self.d_max >= 0, f"d_max must be >= 0, got {self.d_max}")
-        _check(self.v_min >= 0, f"v_min must be >= 0 (forward-driving car), got {self.v_min}")
+        _check(self.v_max > 0, f"v_max must be > 0, got {self.v_max}")
         _check(self.v_min < self.v_max, f"need v_min < v_max, got v_min={self.v_min} v_max={self.v_max}")
+        _check(self.tracking_error >= 0, f"tracking_error (δ) must be >= 0, got {self.tracking_error}")
+        _check(self.d0 >= 0, f"d0 must be >= 0, got {self.d0}")
 
-    def as_dict(self) -> dict[str, float]:
-        return {k: float(v) for k, v in dataclasses.asdict(self).items()}
+    @classmethod
+    def paper(cls, **changes: float) -> CarParams:
+        """The HJRNO paper's car: a = κ = 1, v ∈ [0, 1], ‖d‖ ≤ 0.1 m/s at every speed (δ = 0, d₀ = 0.1)."""
+        return dataclasses.replace(cls(), **changes)
+
+    @classmethod
+    def product(cls, **changes: float) -> CarParams:
+        """The product robot: a = κ = 1, v ∈ [0, 1], ‖d‖ ≤ 0.1·|v| (δ = 0.1, d₀ = 0): at rest, no drift."""
+        return dataclasses.replace(cls(tracking_error=0.1, d0=0.0), **changes)
+
+    @property
+    def preset(self) -> str | None:
+        """"paper" or "product" when these are exactly that named configuration's values, else None."""
+        return next((name for name, make in CAR_PRESETS.items() if make() == self), None)
+
+    @property
+    def d_max(self) -> float:
+        """The paper's speed-independent bound d₀; an error while δ > 0 (the bound depends on v)."""
+        _check(self.tracking_error == 0, f"the disturbance bound depends on speed (tracking_error "
+               f"{self.tracking_error}): use car_disturbance_bound(params, v), not d_max")
+        return self.d0
+
+    def disturbance_max(self) -> float:
+        """The largest bound over the speed range, max_v δ·|v| + d₀, m/s."""
+        return self.tracking_error * max(abs(self.v_min), abs(self.v_max)) + self.d0
+
+    def as_dict(self) -> dict[str, Any]:
+        """``{"model": "dynamic_dubins_car", a_max, kappa_max, d0, v_min, v_max, tracking_error}``: what
+        a model card's ``dynamics`` holds; :meth:`from_dict` reads it back."""
+        return {"model": CAR_MODEL, **{k: float(v) for k, v in dataclasses.asdict(self).items()}}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> CarParams:
+        """Inverse of :meth:`as_dict`.  A dict without ``model`` or any new field (``d0``,
+        ``tracking_error``) is the paper's form {a_max, kappa_max, d_max, v_min, v_max}: d₀ = d_max, δ = 0.
+        Missing fields take the paper's defaults; unknown fields and models are a ValueError."""
+        d = dict(d)
+        model = d.pop("model", CAR_MODEL)
+        _check(model == CAR_MODEL, f"unknown car dynamics model {model!r}; known: {CAR_MODEL!r}")
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - names - {"d_max"})
+        _check(not unknown, f"unknown car parameter(s) {unknown}; known: {sorted(names)}")
+        return cls(**d)
+
+
+CAR_PRESETS = {"paper": CarParams.paper, "product": CarParams.product}
+
+
+def car_preset(name: str) -> CarParams:
+    """The named configuration ``"paper"`` or ``"product"``."""
+    _check(name in CAR_PRESETS, f"unknown robot model {name!r}; choose from {', '.join(CAR_PRESETS)}")
+    return CAR_PRESETS[name]()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,18 +160,23 @@ class Air3DParams:
 
 
 # ---------------------------------------------------------------------------------------------
-# Dynamic Dubins car: ẋ = v cos θ + d1, ẏ = v sin θ + d2, v̇ = u1, θ̇ = v·u2.
+# Dynamic Dubins car: ẋ = v cos θ + d1, ẏ = v sin θ + d2, v̇ = u1, θ̇ = v·u2, ‖d‖ ≤ δ·|v| + d₀.
+
+
+def car_disturbance_bound(p: CarParams, v: Array, xp=np) -> Array:
+    """The radius of the disturbance ball at speed v: δ·|v| + d₀, m/s."""
+    return p.tracking_error * xp.abs(v) + p.d0
 
 
 def feasible_acceleration(p: CarParams, v: Array, u1: Array, xp=np) -> Array:
-    """Clip u1 so the speed cannot leave [v_min, v_max] (no reversing through the limit)."""
+    """Clip u1 so the speed cannot leave [v_min, v_max] (neither limit is crossed, whatever its sign)."""
     tol = _EDGE_TOL * (p.v_max - p.v_min)
     u1 = xp.where(v >= p.v_max - tol, xp.minimum(u1, 0.0), u1)
     return xp.where(v <= p.v_min + tol, xp.maximum(u1, 0.0), u1)
 
 
 def car_f(p: CarParams, state: Array, control: Array, disturbance: Array, xp=np) -> Array:
-    """ẋ = f(x, u, d) of the dynamic Dubins car; u = (acceleration, curvature), d = (dx, dy)."""
+    """ẋ = f(x, u, d) of the dynamic Dubins car; u = (acceleration, curvature), d = (dx, dy) in m/s."""
     v, theta = state[..., 2], state[..., 3]
     u1 = feasible_acceleration(p, v, control[..., 0], xp)
     return xp.stack(
@@ -101,19 +186,28 @@ def car_f(p: CarParams, state: Array, control: Array, disturbance: Array, xp=np)
 
 
 def car_optimal_control(p: CarParams, state: Array, grad: Array, xp=np) -> Array:
-    """argmax_u ∇V·f: u1 = a_max·sign(∂V/∂v) (kept feasible), u2 = κ_max·sign(v·∂V/∂θ)."""
+    """argmax_u ∇V·f: u1 = a_max·sign(∂V/∂v) (kept feasible), u2 = κ_max·sign(v·∂V/∂θ).
+
+    Where ∂V/∂v = 0 every u1 is optimal and u1 brakes towards v = 0 (−a_max·sign(v)): the safe control
+    never speeds up without a reason in V.  The v in u2's sign matters when reversing: at v < 0 the
+    same curvature turns the heading the other way (θ̇ = v·u2), so the safe turn flips with the
+    direction of travel."""
     v = state[..., 2]
-    u1 = xp.where(grad[..., 2] < 0, -p.a_max, p.a_max)
+    u1 = xp.where(grad[..., 2] < 0, -p.a_max, xp.where(grad[..., 2] > 0, p.a_max, -p.a_max * xp.sign(v)))
     u2 = xp.where(v * grad[..., 3] < 0, -p.kappa_max, p.kappa_max)
     return xp.stack([feasible_acceleration(p, v, u1, xp), u2], axis=-1)
 
 
-def car_worst_disturbance(p: CarParams, state: Array, grad: Array, xp=np) -> Array:
-    """argmin_d ∇V·f over the ball ‖d‖ ≤ d_max: d = −d_max ∇ₓᵧV / ‖∇ₓᵧV‖ (zero where ∇ₓᵧV = 0)."""
-    del state
+def worst_direction(grad: Array, xp=np) -> Array:
+    """−∇ₓᵧV / ‖∇ₓᵧV‖, the unit x-y direction that lowers V fastest (zero where ∇ₓᵧV = 0)."""
     g = grad[..., :2]
     norm = xp.sqrt(xp.sum(g * g, axis=-1, keepdims=True))
-    return xp.where(norm > 0, -p.d_max * g / xp.where(norm > 0, norm, 1.0), 0.0 * g)
+    return xp.where(norm > 0, -g / xp.where(norm > 0, norm, 1.0), 0.0 * g)
+
+
+def car_worst_disturbance(p: CarParams, state: Array, grad: Array, xp=np) -> Array:
+    """argmin_d ∇V·f over the ball ‖d‖ ≤ δ·|v| + d₀: d = −(δ·|v| + d₀)·∇ₓᵧV / ‖∇ₓᵧV‖."""
+    return car_disturbance_bound(p, state[..., 2], xp)[..., None] * worst_direction(grad, xp)
 
 
 # ---------------------------------------------------------------------------------------------

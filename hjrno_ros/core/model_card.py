@@ -2,8 +2,10 @@
 
 A model on disk is ``<stem>.safetensors`` (tensors only) plus ``<stem>.json`` (this card).  The
 card says what the weights were trained for: architecture (``kind``, ``config``), input channels
-(``inputs``), the value grid and window (``grid``, ``window`` its x-y part), the car's limits (``dynamics``;
-an Air3D model's speeds and turn rates), the calibrated
+(``inputs``), the value grid and window (``grid``, ``window`` its x-y part), the robot model the weights
+were trained for (``dynamics``: ``model`` names the equations, the other fields are its parameters; a card
+from before the product model lists the paper car's {a_max, kappa_max, d_max, v_min, v_max} and reads as
+the paper model; an Air3D model's speeds and turn rates), the calibrated
 margins (``epsilon``; ``refine_epsilon`` from the refined stage ``refine_calibration.horizon_s``),
 metrics, data and the command that reproduces it.  Reading it never imports torch: the node checks a
 card before it pays for loading weights.  Every problem is one ``ValueError`` line naming the field.
@@ -17,13 +19,13 @@ import math
 from pathlib import Path
 from typing import Any
 
-from hjrno_ros.core.dynamics import Air3DParams, CarParams
+from hjrno_ros.core.dynamics import CAR_MODEL, LEGACY_CAR_FIELDS, Air3DParams, CarParams
 from hjrno_ros.core.grids import GridSpec
 
 CARD_FORMAT = "hjrno-model-1"
 REQUIRED = ("format", "kind", "config", "inputs", "grid", "dynamics")
 KINDS = ("fno", "tno", "cnn", "ensemble")
-DYNAMICS_FIELDS = tuple(f.name for f in dataclasses.fields(CarParams))
+DYNAMICS_FIELDS = ("model", *(f.name for f in dataclasses.fields(CarParams)))  # a car card's dynamics
 DEFAULT_EPSILON = 0.1  # m: a card without a calibrated margin
 # inputs.kind -> (dynamics class, grid axes, periodic axis, its name); the filter takes "car" models only
 FAMILIES = {"car": (CarParams, 4, 3, "(x, y, v, theta)"), "air3d": (Air3DParams, 3, 2, "(x, y, psi)")}
@@ -128,14 +130,24 @@ def _grid(d: dict, where: str, family: str) -> GridSpec:
 
 
 def _dynamics(d: dict, where: str, family: str) -> CarParams | Air3DParams:
+    """The card's robot model.  A car card names it (``dynamics.model``, :data:`DYNAMICS_FIELDS`); one
+    without ``model`` is a paper-model card {a_max, kappa_max, d_max, v_min, v_max} (d₀ = d_max, δ = 0)."""
     cls = FAMILIES[family][0]
     dyn = _field(d, "dynamics", dict, where)
-    for f in dataclasses.fields(cls):
-        value = _field(dyn, f.name, (int, float), where, "dynamics.")
+    names = [f.name for f in dataclasses.fields(cls)]
+    if cls is CarParams:
+        if "model" in dyn or "d0" in dyn or "tracking_error" in dyn:
+            model = _field(dyn, "model", str, where, "dynamics.")
+            if model != CAR_MODEL:
+                raise ValueError(f"{where}: field 'dynamics.model' must be {CAR_MODEL!r}, got {model!r}")
+        else:
+            names = list(LEGACY_CAR_FIELDS)
+    for name in names:
+        value = _field(dyn, name, (int, float), where, "dynamics.")
         if not math.isfinite(value):
-            raise ValueError(f"{where}: field 'dynamics.{f.name}' must be finite, got {value!r}")
+            raise ValueError(f"{where}: field 'dynamics.{name}' must be finite, got {value!r}")
     try:
-        return cls(**{f.name: float(dyn[f.name]) for f in dataclasses.fields(cls)})
+        return cls(**{name: float(dyn[name]) for name in names})
     except (ValueError, TypeError) as err:
         raise ValueError(f"{where}: field 'dynamics' is invalid ({err})") from None
 
@@ -149,7 +161,8 @@ class ModelCard:
     inputs: dict
     grid: GridSpec  # the value grid (x, y, v, θ) the model predicts on
     window: tuple[float, float]  # x-y extent of the grid, m
-    dynamics: CarParams | Air3DParams  # CarParams for a car model (inputs.kind "car"), the filter's only kind
+    dynamics: CarParams | Air3DParams  # the robot model the weights were trained for (the filter's model):
+    # CarParams for a car model (inputs.kind "car"), the filter's only kind
     epsilon: float | None  # calibrated margin for the operator's value, m
     refine_epsilon: float | None  # calibrated margin for solver-refined tables, m
     refine_horizon: float | None  # simulated s of refinement from which refine_epsilon holds

@@ -12,7 +12,13 @@ from collections.abc import Callable
 
 import numpy as np
 
-from hjrno_ros.core.dynamics import CarParams, car_f, car_optimal_control, car_worst_disturbance
+from hjrno_ros.core.dynamics import (
+    CarParams,
+    car_disturbance_bound,
+    car_f,
+    car_optimal_control,
+    car_worst_disturbance,
+)
 from hjrno_ros.core.value_table import ValueTable
 
 Feedback = Callable[[np.ndarray], np.ndarray]
@@ -90,6 +96,12 @@ def wrap_car(states: np.ndarray) -> np.ndarray:
 def ball_noise(d_max: float, rng: np.random.Generator) -> Feedback:
     """Random disturbance, uniform in the disk ‖d‖ ≤ d_max, drawn anew at every step."""
     return lambda states: ball(rng, (states.shape[0],), d_max)
+
+
+def car_random_disturbance(params: CarParams, rng: np.random.Generator) -> Feedback:
+    """The car's random disturbance: uniform in its disk ‖d‖ ≤ δ·|v| + d₀ at each state, drawn anew at
+    every step (the paper's car: ‖d‖ ≤ d₀ everywhere)."""
+    return lambda states: car_disturbance_bound(params, states[:, 2])[:, None] * ball(rng, (states.shape[0],), 1.0)
 
 
 def car_optimal_feedback(params: CarParams, table: ValueTable) -> tuple[Feedback, Feedback]:

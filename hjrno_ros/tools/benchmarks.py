@@ -1,7 +1,8 @@
 """Benchmarks that print a table and write results files (Markdown + JSON).
 
-``solver``: converged solve time and peak memory per grid size.  Each case runs in its own
-process (``hjrno solve --json``) so peak RSS is that case's alone.
+``solver``: converged solve time and peak memory per grid size, the product robot model beside the
+paper's (disk, room, an indoor scene at three grids, with the time ratio), plus Air3D.  Each case runs
+in its own process (``hjrno solve --json``) so peak RSS and JIT compilation are that case's alone.
 ``dataset``: the paper's "Dataset Time" and "Data Size" columns per scenario family.
 """
 
@@ -18,45 +19,88 @@ import sys
 import time
 from pathlib import Path
 
-SOLVER_CASES = [
-    ("disk", "32,32,9,16"),
-    ("disk", "40,40,12,20"),
-    ("disk", "50,50,15,24"),
-    ("room", "40,40,12,20"),
-    ("air3d", "51,40,50"),
-]
+import numpy as np
+
+SOLVER_GRIDS = ("32,32,9,16", "40,40,12,20", "50,50,15,24")
+SOLVER_CASES = [(name, grid) for name in ("disk", "room", "indoor") for grid in SOLVER_GRIDS]
+ROBOTS = ("paper", "product")
+AIR3D_CASE = ("air3d", "51,40,50")
 
 
 def machine() -> str:
     return f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
 
 
-def bench_solver(out: Path, quick: bool = False) -> list[dict]:
+def _solve_case(out: Path, name: str, grid: str, robot: str | None) -> dict:
+    """One ``hjrno solve --json`` process: its report, peak RSS and the table's safety statistics."""
+    from hjrno_ros.datasets.h5store import read_solution
+
+    cmd = [sys.executable, "-m", "hjrno_ros.cli", "solve", "--scenario", name, "--grid", grid, "--json",
+           "--no-plot", "--quiet", "--warmup", "--out", str(out / "tmp")] + (["--robot", robot] if robot else [])
+    start = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    total = time.perf_counter() - start
+    if proc.returncode not in (0, 3):
+        raise RuntimeError(f"bench case {name} {grid} {robot or ''} failed: {proc.stderr.strip().splitlines()[-1:]}")
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    result["process_wall_s"] = total
+    if robot:
+        from hjrno_ros.truth.solver import rise_with_speed
+
+        spec, target, value, _ = read_solution(result["h5"])
+        rest = int(np.argmin(np.abs(spec.axis(2))))
+        result["unsafe_at_rest"] = float((value[:, :, rest] <= 0).mean())
+        result["obstacle_at_rest"] = float((target[:, :, rest] <= 0).mean())
+        rise = rise_with_speed(spec, value)
+        result["max_rise_with_speed"] = float(rise.max())
+        result["rising_share"] = float((rise > 1e-6).mean())
+    return result
+
+
+def _row(name: str, grid: str, results: dict[str, dict]) -> dict:
+    shape = [int(v) for v in grid.split(",")]
+    row = {"problem": name, "grid": "x".join(map(str, shape)), "points_M": round(math.prod(shape) / 1e6, 3)}
+    for robot, r in results.items():
+        rep = r["report"]
+        row[f"{robot}_converged"] = rep["converged"]
+        row[f"{robot}_horizon_s"] = rep["horizon"]
+        row[f"{robot}_solve_s"] = round(rep["wall_time"], 1)
+        row[f"{robot}_unsafe_at_rest"] = round(r["unsafe_at_rest"], 3)
+        row[f"{robot}_max_rise_m"] = float(f"{r['max_rise_with_speed']:.2g}")
+    paper, product = results["paper"], results["product"]
+    ratio = paper["report"]["wall_time"] / product["report"]["wall_time"]
+    cold = [r["report"]["wall_time"] + r["warmup_s"] for r in (paper, product)]
+    # the paper model stopped by its horizon budget: its time is a lower bound, so is the ratio
+    capped = "" if paper["report"]["converged"] else " (paper capped: >=)"
+    row["speedup"] = f"{ratio:.1f}{capped}"
+    row["speedup_first_call"] = f"{cold[0] / cold[1]:.1f}{capped}"
+    row["compile_s"] = round(product["warmup_s"], 1)
+    row["obstacle_at_rest"] = round(product["obstacle_at_rest"], 3)
+    row["peak_rss_MB"] = f"{round(paper['peak_rss_mb'])}/{round(product['peak_rss_mb'])}"
+    return row
+
+
+def bench_solver(out: Path, quick: bool = False, only: tuple[str, ...] = ()) -> list[dict]:
+    """Product vs paper per (problem, grid), one process each; the quick run does the 32x32x9x16 disk;
+    ``only``: these problems (the table keeps the other problems' rows of an earlier run)."""
+    known = {name for name, _ in SOLVER_CASES} | {AIR3D_CASE[0]}
+    if set(only) - known:
+        raise ValueError(f"unknown solver bench problems {sorted(set(only) - known)}; choose from {sorted(known)}")
     rows = []
-    for name, grid in SOLVER_CASES[:1] if quick else SOLVER_CASES:
-        cmd = [sys.executable, "-m", "hjrno_ros.cli", "solve", "--scenario", name, "--grid", grid, "--json",
-               "--no-plot", "--out", str(out / "tmp")]
-        start = time.perf_counter()
-        proc = subprocess.run(cmd, capture_output=True, text=True)
-        total = time.perf_counter() - start
-        if proc.returncode not in (0, 3):
-            raise RuntimeError(f"bench case {name} {grid} failed: {proc.stderr.strip().splitlines()[-1:]}")
-        result = json.loads(proc.stdout.strip().splitlines()[-1])
-        report = result["report"]
-        shape = [int(v) for v in grid.split(",")]
-        row = {
-            "problem": name,
-            "grid": "x".join(map(str, shape)),
-            "points_M": round(math.prod(shape) / 1e6, 3),
-            "converged": report["converged"],
-            "horizon_s": report["horizon"],
-            "solve_wall_s": round(report["wall_time"], 1),
-            "process_wall_s": round(total, 1),
-            "peak_rss_MB": round(result["peak_rss_mb"]),
-            "brt_fraction": round(result["brt_fraction"], 4),
-        }
-        rows.append(row)
-        print(" | ".join(f"{k}={v}" for k, v in row.items()), flush=True)
+    cases = SOLVER_CASES[:1] if quick else [c for c in SOLVER_CASES if not only or c[0] in only]
+    for name, grid in cases:
+        results = {robot: _solve_case(out, name, grid, robot) for robot in ROBOTS}
+        rows.append(_row(name, grid, results))
+        print(" | ".join(f"{k}={v}" for k, v in rows[-1].items()), flush=True)
+    if not quick and (not only or AIR3D_CASE[0] in only):
+        r = _solve_case(out, *AIR3D_CASE, None)
+        rep = r["report"]
+        rows.append({"problem": "air3d", "grid": AIR3D_CASE[1].replace(",", "x"),
+                     "points_M": round(math.prod(int(v) for v in AIR3D_CASE[1].split(",")) / 1e6, 3),
+                     "paper_converged": rep["converged"], "paper_horizon_s": rep["horizon"],
+                     "paper_solve_s": round(rep["wall_time"], 1), "compile_s": round(r["warmup_s"], 1),
+                     "peak_rss_MB": round(r["peak_rss_mb"])})
+        print(" | ".join(f"{k}={v}" for k, v in rows[-1].items()), flush=True)
     shutil.rmtree(out / "tmp", ignore_errors=True)
     return rows
 
@@ -98,7 +142,7 @@ def bench_dataset(out: Path, samples: int, families: tuple[str, ...]) -> list[di
 def _markdown(title: str, rows: list[dict], note: str) -> str:
     keys = list(rows[0])
     lines = [f"# {title}", "", note, "", "| " + " | ".join(keys) + " |", "|" + " --- |" * len(keys)]
-    lines += ["| " + " | ".join(str(r[k]) for k in keys) + " |" for r in rows]
+    lines += ["| " + " | ".join(str(r.get(k, "")) for k in keys) + " |" for r in rows]
     return "\n".join(lines) + "\n"
 
 
@@ -124,22 +168,39 @@ def run(what: str, out: Path, quick: bool = False, only: tuple[str, ...] = (), m
         return write_table(out, "dataset_quick" if quick else "dataset", "Dataset benchmark", rows, note)
     if what != "solver":
         raise ValueError(f"unknown benchmark {what!r}")
-    rows = bench_solver(out, quick)
-    note = (f"`hjrno bench solver` on {machine()}, {time.strftime('%Y-%m-%d')}. JAX CPU, float32, accuracy high "
-            "(WENO3 + RK3), converged when max |dV| per simulated second < 1e-3 (disk: over the interior; room "
-            "and Air3D: over the band near V = 0). solve_wall_s includes JIT compilation; process_wall_s adds "
-            "imports and start-up.")
+    rows = bench_solver(out, quick, only)
+    note = (f"`hjrno bench solver` on {machine()}, {time.strftime('%Y-%m-%d')}, one run. JAX CPU, float32, accuracy "
+            "high (WENO3 + RK3), converged when max |dV| per simulated second < 1e-3 (disk: over the interior; room, "
+            "indoor (scene 3 of the indoor family) and Air3D: over the band near V = 0; horizon budget 40 s disk, "
+            "60 s room and indoor, 10 s Air3D). paper: the HJRNO paper's car (||d|| <= 0.1 m/s); product: the product "
+            "robot (||d|| <= 0.1 |v|); both a = kappa = v_max = 1, v in [0, 1] (docs/design.md, 'Robot models'). "
+            "Each case runs in its own process, which first compiles the solver step with a one-chunk solve "
+            "(compile_s: that warm-up, the same for both models since their parameters are traced values); "
+            "*_solve_s: the converged solve after it; speedup = paper_solve_s / product_solve_s, speedup_first_call "
+            "the same with each warm-up added (a fresh process's first solve). A paper solve that ran out of its "
+            "horizon budget is marked: its time is to the cap, the ratio a lower bound. "
+            "*_unsafe_at_rest: share of the v = 0 slice with V <= 0 "
+            "(obstacle_at_rest: with l <= 0). *_max_rise_m: the largest rise of V towards higher |v| between "
+            "neighbouring speed nodes, interior. peak_rss_MB: paper/product.")
     return write_table(out, "solver_quick" if quick else "solver", "Solver benchmark", rows, note)
 
 
 def write_table(out: Path, stem: str, title: str, rows: list[dict], note: str) -> int:
     """Write the table; rows of an earlier run for other cases (first column) are kept."""
     old = out / f"{stem}.json"
-    if old.exists():
+    if old.exists():  # fresh rows take the place of the old rows of their case, in the old order
         key = next(iter(rows[0]))
-        fresh = {r[key] for r in rows}
-        kept = [r for r in json.loads(old.read_text())["rows"] if r.get(key) not in fresh]
-        rows = kept + rows
+        fresh: dict = {}
+        for r in rows:
+            fresh.setdefault(r[key], []).append(r)
+        merged = []
+        for r in json.loads(old.read_text())["rows"]:
+            if r.get(key) not in fresh:
+                merged.append(r)
+            elif fresh[r[key]]:
+                merged += fresh[r[key]]
+                fresh[r[key]] = []
+        rows = merged + [r for group in fresh.values() for r in group]
     (out / f"{stem}.md").write_text(_markdown(title, rows, note))
     (out / f"{stem}.json").write_text(json.dumps({"machine": machine(), "note": note, "rows": rows}, indent=1))
     print(f"wrote {out / (stem + '.md')}")

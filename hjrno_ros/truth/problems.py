@@ -1,6 +1,9 @@
 """Fixed reference problems for ``hjrno solve``, the benchmarks and the validation tests.
 
-Each is deterministic: dynamics, grid, target l and the solve settings that suit it.
+Each is deterministic: dynamics, grid, target l and the solve settings that suit it.  The car
+problems take the robot model (``params``; default the paper's car, :meth:`CarParams.paper`, which the
+reproduction tables use; :meth:`CarParams.product` is the product robot); the grid's speed axis is
+the model's [v_min, v_max].
 """
 
 from __future__ import annotations
@@ -13,10 +16,12 @@ import numpy as np
 from hjrno_ros.core.dynamics import Air3DParams, CarParams
 from hjrno_ros.core.geometry import Box, Disk, Shape, air3d_collision_sdf, union_sdf
 from hjrno_ros.core.grids import GridSpec, air3d_grid, car_grid
+from hjrno_ros.truth.scenarios import make_scenario
 from hjrno_ros.truth.systems import Air3D, DynamicDubinsCar
 
 DEFAULT_CAR_SHAPE = (40, 40, 12, 20)
 DEFAULT_AIR3D_SHAPE = (51, 40, 50)
+INDOOR_SEED = 3  # the ``indoor`` problem: this scene of the indoor family (two walls with doors, clutter)
 
 
 @dataclasses.dataclass
@@ -34,8 +39,12 @@ class Problem:
         return union_sdf(self.shapes, np.asarray(states)[..., :2])
 
 
+def _car_grid(shape: tuple[int, ...], params: CarParams) -> GridSpec:
+    return car_grid(shape, v_range=(params.v_min, params.v_max))
+
+
 def disk(shape=DEFAULT_CAR_SHAPE, params: CarParams = CarParams()) -> Problem:
-    grid = car_grid(shape)
+    grid = _car_grid(shape, params)
     shapes = (Disk((0.0, 0.0), 1.0),)
     target = union_sdf(shapes, grid.states()[..., :2]).astype(np.float32)
     return Problem("disk", "dynamic Dubins car, disk obstacle r = 1 m at the centre of a 10 m x 10 m window",
@@ -44,7 +53,7 @@ def disk(shape=DEFAULT_CAR_SHAPE, params: CarParams = CarParams()) -> Problem:
 
 def room(shape=DEFAULT_CAR_SHAPE, params: CarParams = CarParams()) -> Problem:
     """Converged is judged near V = 0: inside the walls V keeps sinking towards the extrapolated edge."""
-    grid = car_grid(shape)
+    grid = _car_grid(shape, params)
     t, h = 0.4, 5.0  # wall thickness and half the room size, m
     shapes = (
         Box((0.0, -h + t / 2), (h, t / 2)),
@@ -57,6 +66,17 @@ def room(shape=DEFAULT_CAR_SHAPE, params: CarParams = CarParams()) -> Problem:
                    DynamicDubinsCar(params), grid, target, shapes, {"criterion": "band", "max_horizon": 60.0})
 
 
+def indoor(shape=DEFAULT_CAR_SHAPE, params: CarParams = CarParams()) -> Problem:
+    """Scene ``INDOOR_SEED`` of the indoor family; judged on the band, as the indoor datasets are."""
+    fields = {k: v for k, v in params.as_dict().items() if k != "model"}
+    scenario = make_scenario("indoor", INDOOR_SEED, **fields)
+    grid = scenario.grid(shape)
+    return Problem("indoor", f"dynamic Dubins car in indoor scene {INDOOR_SEED}: outer walls, "
+                   f"{scenario.params['n_walls']} interior wall(s) with doors, {scenario.params['n_clutter']} clutter "
+                   "item(s), 10 m x 10 m", DynamicDubinsCar(params), grid, scenario.target(grid), scenario.shapes,
+                   {"criterion": "band", "max_horizon": 60.0})
+
+
 def air3d(shape=DEFAULT_AIR3D_SHAPE, params: Air3DParams = Air3DParams()) -> Problem:
     grid = air3d_grid(shape)
     shapes = (Disk((0.0, 0.0), 2.5), Disk((0.0, 0.0), 2.5))
@@ -65,10 +85,17 @@ def air3d(shape=DEFAULT_AIR3D_SHAPE, params: Air3DParams = Air3DParams()) -> Pro
                    Air3D(params), grid, target, shapes, {"criterion": "band", "max_horizon": 10.0, "chunk": 0.5})
 
 
-PROBLEMS: dict[str, Callable[..., Problem]] = {"disk": disk, "room": room, "air3d": air3d}
+PROBLEMS: dict[str, Callable[..., Problem]] = {"disk": disk, "room": room, "indoor": indoor, "air3d": air3d}
+CAR_PROBLEMS = ("disk", "room", "indoor")
 
 
-def make_problem(name: str, shape: tuple[int, ...] | None = None) -> Problem:
+def make_problem(name: str, shape: tuple[int, ...] | None = None, params: CarParams | None = None) -> Problem:
+    """Problem ``name`` on ``shape`` (default: its own); ``params``: a car problem's robot model."""
     if name not in PROBLEMS:
         raise ValueError(f"unknown problem {name!r}; choose from {', '.join(PROBLEMS)}")
-    return PROBLEMS[name]() if shape is None else PROBLEMS[name](tuple(shape))
+    kwargs = {} if shape is None else {"shape": tuple(shape)}
+    if params is not None:
+        if name not in CAR_PROBLEMS:
+            raise ValueError(f"problem {name!r} has no robot model to choose; car problems: {', '.join(CAR_PROBLEMS)}")
+        kwargs["params"] = params
+    return PROBLEMS[name](**kwargs)

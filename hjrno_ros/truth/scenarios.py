@@ -22,7 +22,9 @@ drawn even when the caller overrides it, so an override changes only what depend
 Each family declares its sampling ranges once, in :data:`FAMILIES`.  Overrides of geometric
 parameters must lie in those ranges; overrides of dynamics parameters (CarParams or
 Air3DParams fields) only need to be physically valid, so a model can be tested outside the
-training box.
+training box.  The car families take the robot model as the option ``robot`` ("paper", the default
+the reproduction datasets use, or "product"; docs/design.md, "Robot models"), whose values the
+CarParams options then change; a scenario's ``params`` hold the resulting model (``CarParams.as_dict``).
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial import ConvexHull
 
-from hjrno_ros.core.dynamics import Air3DParams, CarParams
+from hjrno_ros.core.dynamics import Air3DParams, CarParams, car_preset
 from hjrno_ros.core.geometry import (
     Box,
     ClosedSpline,
@@ -131,8 +133,12 @@ class Scenario:
         return FAMILIES[self.family].kind == "air3d"
 
     def dynamics_params(self) -> CarParams | Air3DParams:
-        cls = Air3DParams if self.is_air3d else CarParams
-        return cls(**{f.name: self.params[f.name] for f in dataclasses.fields(cls) if f.name in self.params})
+        """The dynamics' parameters; a car scenario stored before the product model (``d_max``) is the paper's car."""
+        if self.is_air3d:
+            return Air3DParams(**{f.name: self.params[f.name] for f in dataclasses.fields(Air3DParams)
+                                  if f.name in self.params})
+        names = ("model", "d_max", *(f.name for f in dataclasses.fields(CarParams)))
+        return CarParams.from_dict({k: self.params[k] for k in names if k in self.params})
 
     def dynamics(self) -> DynamicDubinsCar | Air3D:
         """The ``hj_reachability`` dynamics with this scenario's parameters."""
@@ -222,9 +228,10 @@ class _Draw:
             raise ValueError(f"option {name} must be one of {options}, got {value!r}")
         return value
 
-    def dynamics(self, cls: type, **values: float) -> dict[str, float]:
-        """Fields of CarParams / Air3DParams: given values, else overrides, else defaults (validated)."""
-        defaults = cls()
+    def dynamics(self, cls: type, **values: float) -> dict[str, Any]:
+        """Fields of CarParams / Air3DParams: given values, else overrides, else defaults (validated); the
+        car's defaults are those of the robot model named by the option ``robot`` (default "paper")."""
+        defaults = car_preset(self.overrides.get("robot", "paper")) if cls is CarParams else cls()
         fields = {}
         for f in dataclasses.fields(cls):
             raw = values.get(f.name, self.overrides.get(f.name, getattr(defaults, f.name)))
@@ -460,7 +467,7 @@ class FamilySpec:
     def options(self) -> tuple[str, ...]:
         """Names ``make_scenario`` accepts as overrides."""
         dyn = Air3DParams if self.kind == "air3d" else CarParams
-        names = [k for k in self.ranges if k not in _LAW_KEYS]
+        names = [k for k in self.ranges if k not in _LAW_KEYS] + ([] if self.kind == "air3d" else ["robot"])
         return tuple(sorted({*names, *self.choices, *self.extra_options, *(f.name for f in dataclasses.fields(dyn))}))
 
 

@@ -112,6 +112,20 @@ def interior_mask(grid: GridSpec, open_axes: tuple[int, ...], edge_cells: int = 
     return mask
 
 
+def rise_with_speed(grid: GridSpec, value: np.ndarray, open_axes: tuple[int, ...] = (0, 1),
+                    edge_cells: int = 2) -> np.ndarray:
+    """Every step of a car table along the speed axis, as V(node with the larger |v|) − V(the other),
+    flattened, over the interior (``open_axes`` edges excluded, they are extrapolated).  > 0 where the
+    table calls the faster state safer.  A pair of nodes straddling v = 0 is left out (neither |v| is
+    larger in the sense of braking towards 0)."""
+    v = grid.axis(2)
+    step = np.diff(np.asarray(value, np.float64), axis=2)  # V[i+1] − V[i]
+    keep = (v[:-1] >= 0) | (v[1:] <= 0)
+    outward = np.where(v[:-1] >= 0, 1.0, -1.0)[keep]  # i → i+1 raises |v| at v ≥ 0, lowers it at v ≤ 0
+    inner = interior_mask(grid, open_axes, edge_cells)[:, :, 1:][:, :, keep]
+    return (step[:, :, keep] * outward[None, None, :, None])[inner]
+
+
 def validate_table(grid: GridSpec, table: np.ndarray, what: str = "target") -> np.ndarray:
     """``table`` (the target l or a warm start) as float32 on ``grid``, or a ValueError saying what is wrong."""
     table = np.asarray(table)

@@ -16,9 +16,10 @@ from hjrno_ros.core.dynamics import (
     air3d_f,
     air3d_optimal_control,
     air3d_worst_disturbance,
+    car_disturbance_bound,
     car_f,
     car_optimal_control,
-    car_worst_disturbance,
+    worst_direction,
 )
 from hjrno_ros.core.grids import GridSpec
 
@@ -36,11 +37,8 @@ def hj_grid(grid: GridSpec) -> hj.Grid:
 
 
 class _SharedFormulas(hj.ControlAndDisturbanceAffineDynamics):
-    """hj dynamics whose f, optimal control and disturbance are the shared formulas above."""
-
-    _f = staticmethod(car_f)
-    _control = staticmethod(car_optimal_control)
-    _disturbance = staticmethod(car_worst_disturbance)
+    """hj dynamics whose f, optimal control and disturbance are the shared formulas of core.dynamics
+    (a subclass names them as ``_f``, ``_control``, ``_disturbance`` or overrides the two methods)."""
 
     def __init__(self, params, control_space, disturbance_space):
         self.params = params
@@ -63,7 +61,14 @@ class _SharedFormulas(hj.ControlAndDisturbanceAffineDynamics):
 
 
 class DynamicDubinsCar(_SharedFormulas):
-    """The dynamic Dubins car as ``hj_reachability`` dynamics; control maximises, disturbance minimises."""
+    """The dynamic Dubins car as ``hj_reachability`` dynamics; control maximises, disturbance minimises.
+
+    The disturbance bound δ·|v| + d₀ depends on the state, an hj disturbance space cannot: the
+    disturbance variable here is e in the unit ball and the position disturbance is
+    d = (δ·|v| + d₀)·e, so the disturbance Jacobian carries the bound.  Then hj's Lax-Friedrichs
+    dissipation sees the right magnitude, and the Hamiltonian's disturbance term is
+    −(δ·|v| + d₀)·‖∇ₓᵧV‖, the same worst case as :func:`~hjrno_ros.core.dynamics.car_worst_disturbance`.
+    """
 
     state_names = ("x", "y", "v", "theta")
 
@@ -72,8 +77,15 @@ class DynamicDubinsCar(_SharedFormulas):
         super().__init__(
             p,
             hj.sets.Box(jnp.array([-p.a_max, -p.kappa_max]), jnp.array([p.a_max, p.kappa_max])),
-            hj.sets.Ball(jnp.zeros(2), jnp.asarray(p.d_max)),
+            hj.sets.Ball(jnp.zeros(2), 1.0),
         )
+
+    def __call__(self, state, control, disturbance, time):
+        bound = car_disturbance_bound(self.params, state[..., 2], jnp)[..., None]
+        return car_f(self.params, state, control, bound * disturbance, jnp)
+
+    def optimal_control_and_disturbance(self, state, time, grad_value):
+        return car_optimal_control(self.params, state, grad_value, jnp), worst_direction(grad_value, jnp)
 
     def open_loop_dynamics(self, state, time):
         v, theta = state[2], state[3]
@@ -83,7 +95,8 @@ class DynamicDubinsCar(_SharedFormulas):
         return jnp.array([[0.0, 0.0], [0.0, 0.0], [1.0, 0.0], [0.0, state[2]]])
 
     def disturbance_jacobian(self, state, time):
-        return jnp.array([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0], [0.0, 0.0]])
+        b = car_disturbance_bound(self.params, state[2], jnp)
+        return jnp.array([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0], [0.0, 0.0]]) * b
 
 
 class Air3D(_SharedFormulas):

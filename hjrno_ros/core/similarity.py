@@ -1,0 +1,161 @@
+"""Exact similarity of the dynamic Dubins car: one robot's value function is another's, rescaled.
+
+docs/design.md, "Similarity".  With lengths x = s·x′ and times t = τ·t′ (so speeds v = (s/τ)·v′,
+accelerations (s/τ²)·a′, curvatures κ′/s, headings unchanged), the car ẋ = v cos θ + d, v̇ = u₁,
+θ̇ = v·u₂, ‖d‖ ≤ δ·|v| + d₀ is the same car in primed units with
+
+    a′ = a·τ²/s,  κ′ = κ·s,  v′ = v·τ/s (both limits),  δ′ = δ,  d₀′ = d₀·τ/s,
+
+and, since the target l is a length, V(x, y, v, θ) = s·V′(x/s, y/s, v·τ/s, θ).  Choosing
+s = 1/κ_max and τ = 1/(κ_max·v_max) (:meth:`Scaling.of`) gives κ′ = v′_max = 1: a robot's *model
+units*.  What is left are the dimensionless numbers (:class:`Dimensionless`)
+
+    a_max/(κ_max·v_max²),  v_min/v_max,  δ,  d₀/v_max,
+
+and two robots with equal numbers have the same V′: one solve (or one trained model, on a window
+of W model units, i.e. W·s metres) serves both.  Gradients map per axis: ∂V/∂x = ∂V′/∂x′ (x, y),
+∂V/∂v = τ·∂V′/∂v′, ∂V/∂θ = s·∂V′/∂θ′.  numpy only.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from hjrno_ros.core.dynamics import CarParams
+from hjrno_ros.core.grids import GridSpec
+
+
+@dataclasses.dataclass(frozen=True)
+class Dimensionless:
+    """What a car's value function depends on once length and time are scaled out."""
+
+    accel_ratio: float  # a_max / (κ_max·v_max²): braking distance v²/a against the turn radius 1/κ
+    speed_ratio: float  # v_min / v_max (< 0: the robot reverses)
+    tracking_error: float  # δ
+    rest_disturbance: float  # d₀ / v_max
+
+    @classmethod
+    def of(cls, p: CarParams) -> Dimensionless:
+        return cls(p.a_max / (p.kappa_max * p.v_max ** 2), p.v_min / p.v_max, p.tracking_error, p.d0 / p.v_max)
+
+    def model_params(self) -> CarParams:
+        """The car in model units: κ_max = v_max = 1 with these numbers."""
+        return CarParams(a_max=self.accel_ratio, kappa_max=1.0, d0=self.rest_disturbance, v_min=self.speed_ratio,
+                         v_max=1.0, tracking_error=self.tracking_error)
+
+    def close_to(self, other: Dimensionless, rtol: float = 1e-9, atol: float = 1e-12) -> bool:
+        return all(math.isclose(a, b, rel_tol=rtol, abs_tol=atol)
+                   for a, b in zip(dataclasses.astuple(self), dataclasses.astuple(other), strict=True))
+
+
+@dataclasses.dataclass(frozen=True)
+class Scaling:
+    """x = s·x′, t = τ·t′ between a robot's SI units and primed (model) units."""
+
+    length: float  # s: metres per model length unit
+    time: float  # τ: seconds per model time unit
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.length) and math.isfinite(self.time) and self.length > 0 and self.time > 0):
+            raise ValueError(f"a scaling needs finite length and time > 0, got s={self.length}, tau={self.time}")
+
+    @classmethod
+    def of(cls, robot: CarParams) -> Scaling:
+        """The robot's model units: s = 1/κ_max, τ = 1/(κ_max·v_max), so κ′_max = v′_max = 1."""
+        return cls(1.0 / robot.kappa_max, 1.0 / (robot.kappa_max * robot.v_max))
+
+    @property
+    def speed(self) -> float:
+        """s/τ: m/s per model speed unit."""
+        return self.length / self.time
+
+    @property
+    def acceleration(self) -> float:
+        """s/τ²: m/s² per model acceleration unit."""
+        return self.length / self.time ** 2
+
+    # parameters --------------------------------------------------------------------------------
+    def params_to_model(self, robot: CarParams) -> CarParams:
+        """The robot's limits in model units."""
+        return CarParams(a_max=robot.a_max / self.acceleration, kappa_max=robot.kappa_max * self.length,
+                         d0=robot.d0 / self.speed, v_min=robot.v_min / self.speed, v_max=robot.v_max / self.speed,
+                         tracking_error=robot.tracking_error)
+
+    def params_to_robot(self, model: CarParams) -> CarParams:
+        """Model-unit limits in the robot's SI units."""
+        return CarParams(a_max=model.a_max * self.acceleration, kappa_max=model.kappa_max / self.length,
+                         d0=model.d0 * self.speed, v_min=model.v_min * self.speed, v_max=model.v_max * self.speed,
+                         tracking_error=model.tracking_error)
+
+    # states, grids and windows ---------------------------------------------------------------------
+    def _state_factors(self, ndim: int) -> np.ndarray:
+        if ndim != 4:
+            raise ValueError(f"car states have 4 components (x, y, v, theta), got {ndim}")
+        return np.array([self.length, self.length, self.speed, 1.0])
+
+    def states_to_model(self, states: np.ndarray) -> np.ndarray:
+        states = np.asarray(states, float)
+        return states / self._state_factors(states.shape[-1])
+
+    def states_to_robot(self, states: np.ndarray) -> np.ndarray:
+        states = np.asarray(states, float)
+        return states * self._state_factors(states.shape[-1])
+
+    def grid_to_model(self, grid: GridSpec) -> GridSpec:
+        """A robot's (x, y, v, θ) grid in model units (same nodes, same shape)."""
+        f = self._state_factors(grid.ndim)
+        return dataclasses.replace(grid, lo=tuple(np.asarray(grid.lo) / f), hi=tuple(np.asarray(grid.hi) / f))
+
+    def grid_to_robot(self, grid: GridSpec) -> GridSpec:
+        f = self._state_factors(grid.ndim)
+        return dataclasses.replace(grid, lo=tuple(np.asarray(grid.lo) * f), hi=tuple(np.asarray(grid.hi) * f))
+
+    def window_to_model(self, lo: tuple[float, float], hi: tuple[float, float]) -> tuple[tuple, tuple]:
+        """An x-y map window (m) in model units."""
+        return tuple(float(v) / self.length for v in lo), tuple(float(v) / self.length for v in hi)
+
+    def window_to_robot(self, lo: tuple[float, float], hi: tuple[float, float]) -> tuple[tuple, tuple]:
+        return tuple(float(v) * self.length for v in lo), tuple(float(v) * self.length for v in hi)
+
+    # values, gradients, times ---------------------------------------------------------------------
+    def value_to_model(self, value):
+        """V (or l, or a margin ε), m → model lengths."""
+        return np.asarray(value) / self.length
+
+    def value_to_robot(self, value):
+        """V′ in model lengths → m."""
+        return np.asarray(value) * self.length
+
+    def _gradient_factors(self, ndim: int) -> np.ndarray:
+        if ndim != 4:
+            raise ValueError(f"car gradients have 4 components, got {ndim}")
+        return np.array([1.0, 1.0, self.time, self.length])  # ∂V/∂(x, y, v, θ) = factor·∂V′/∂(x′, y′, v′, θ′)
+
+    def gradient_to_robot(self, grad: np.ndarray) -> np.ndarray:
+        grad = np.asarray(grad, float)
+        return grad * self._gradient_factors(grad.shape[-1])
+
+    def gradient_to_model(self, grad: np.ndarray) -> np.ndarray:
+        grad = np.asarray(grad, float)
+        return grad / self._gradient_factors(grad.shape[-1])
+
+    def duration_to_robot(self, t: float) -> float:
+        """A model-unit time (horizon, chunk) in s."""
+        return float(t) * self.time
+
+    def rate_to_robot(self, rate: float) -> float:
+        """A model-unit rate of V (the solver's max |ΔV| per second) in m/s."""
+        return float(rate) * self.speed
+
+
+def robot_to_robot(a: CarParams, b: CarParams) -> Scaling:
+    """The scaling that takes robot ``a``'s quantities to robot ``b``'s (x_b = s·x_a, t_b = τ·t_a): use its
+    ``*_to_robot`` on ``a``'s values.  ValueError unless their dimensionless numbers agree."""
+    if not Dimensionless.of(a).close_to(Dimensionless.of(b)):
+        raise ValueError(f"robots with different dimensionless numbers are not similar: {Dimensionless.of(a)} vs "
+                         f"{Dimensionless.of(b)}")
+    sa, sb = Scaling.of(a), Scaling.of(b)
+    return Scaling(sb.length / sa.length, sb.time / sa.time)
