@@ -1,6 +1,6 @@
 """``hjrno``: the package's command line (no ROS needed).
 
-    hjrno solve --scenario disk|room|air3d [--grid 40,40,12,20] [--out DIR]
+    hjrno solve --scenario disk|room|indoor|air3d [--robot paper|product] [--grid 40,40,12,20] [--out DIR]
     hjrno generate --experiment NAME [--config FILE] [--out DIR] [--shard K/N] [--workers W]
     hjrno merge --out DIR [SHARD_DIR ...]
     hjrno show --dataset FILE
@@ -55,15 +55,20 @@ def cmd_solve(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from hjrno_ros import versions
+    from hjrno_ros.core.dynamics import car_preset
     from hjrno_ros.datasets.h5store import write_solution
     from hjrno_ros.studies import plotting
     from hjrno_ros.truth import problems
     from hjrno_ros.truth.solver import solve
 
-    problem = problems.make_problem(args.scenario, args.grid)
+    problem = problems.make_problem(args.scenario, args.grid, car_preset(args.robot) if args.robot else None)
     options = dict(problem.solve_options)
     options.update({k: v for k, v in (("max_horizon", args.max_horizon), ("tolerance", args.tolerance)) if v})
     options["accuracy"] = args.accuracy
+    warmup = None
+    if args.warmup:  # compile the step (and run one chunk) first, so report.wall_time is the solve alone
+        warm = {**options, "max_horizon": options.get("chunk", 1.0)}
+        warmup = solve(problem.dynamics, problem.grid, problem.target, **warm)[1].wall_time
     total = options.get("max_horizon", 40.0)
     with tqdm(total=total, unit="sim s", desc=f"solve {problem.name}", disable=args.quiet or args.json,
               bar_format="{l_bar}{bar}| {n:.1f}/{total:.0f} sim s [{elapsed}<{remaining}{postfix}]") as bar:
@@ -90,7 +95,8 @@ def cmd_solve(args: argparse.Namespace) -> int:
         png = plotting.brt_slices(out / f"{problem.name}.png", problem.grid, problem.target, value,
                                   title=f"{problem.name} {'x'.join(map(str, problem.grid.shape))}")
     result = {"problem": problem.name, "report": report.as_dict(), "peak_rss_mb": peak_rss_mb(),
-              "brt_fraction": float((value <= 0).mean()), "h5": str(h5), "png": str(png) if png else None}
+              "brt_fraction": float((value <= 0).mean()), "h5": str(h5), "png": str(png) if png else None,
+              "warmup_s": warmup}
     if args.json:
         result["report"].pop("history")
         print(json.dumps(result))
@@ -288,7 +294,10 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("solve", help="solve a reference problem to the converged V∞")
-    p.add_argument("--scenario", default="disk", help="disk | room | air3d (default: disk)")
+    p.add_argument("--scenario", default="disk", help="disk | room | indoor | air3d (default: disk)")
+    p.add_argument("--robot", default=None, choices=["paper", "product"],
+                   help="car problems: the robot model (default: paper, the reproduction's car; docs/design.md, "
+                   "'Robot models')")
     p.add_argument("--grid", type=_shape, default=None, help="grid shape, e.g. 40,40,12,20 (car) or 51,40,50 (Air3D)")
     p.add_argument("--accuracy", default="high", choices=["low", "medium", "high", "very_high"])
     p.add_argument("--tolerance", type=float, default=None, help="max |dV| per simulated second to call it converged")
@@ -302,6 +311,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("generate", help="solve an experiment's datasets (resumable, shardable)")
     p.add_argument("--experiment", required=True, help="single | two | indoor | velocity | parametric | air3d | ci")
     p.add_argument("--config", default=None, help="YAML file (default: config/experiments/EXPERIMENT.yaml)")
+    p.add_argument("--warmup", action="store_true", help="compile the solver step with a one-chunk solve first, "
+                   "so the reported wall time excludes compilation (the benchmark's setting)")
     p.add_argument("--out", default=None, help="experiment folder (default: data/EXPERIMENT)")
     p.add_argument("--grid", type=_shape, default=None, help="override the config's grid, e.g. 32,32,9,16")
     p.add_argument("--n-train", type=int, default=None, help="override the number of training samples")
@@ -444,7 +455,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("what", choices=["solver", "dataset", "node", "fuzz"])
     p.add_argument("--out", default="out/bench", help="results folder (default: out/bench)")
     p.add_argument("--quick", action="store_true", help="smallest case only (smoke run)")
-    p.add_argument("--only", default=None, help="dataset bench: comma-separated families (others keep old rows)")
+    p.add_argument("--only", default=None, help="dataset bench: comma-separated families; solver bench: problems "
+                   "(others keep old rows)")
     p.add_argument("--model", default=None, help="node bench: model stem (default: the bundled model)")
     p.add_argument("--seconds", type=float, default=None, help="fuzz bench: seconds of fuzzing (default: 180)")
     p.set_defaults(func=cmd_bench)
