@@ -306,13 +306,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-plot", action="store_true", help="skip the PNG")
     p.add_argument("--json", action="store_true", help="print one JSON line instead of text")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--warmup", action="store_true", help="compile the solver step with a one-chunk solve first, "
+                   "so the reported wall time excludes compilation (the benchmark's setting)")
     p.set_defaults(func=cmd_solve)
 
     p = sub.add_parser("generate", help="solve an experiment's datasets (resumable, shardable)")
     p.add_argument("--experiment", required=True, help="single | two | indoor | velocity | parametric | air3d | ci")
     p.add_argument("--config", default=None, help="YAML file (default: config/experiments/EXPERIMENT.yaml)")
-    p.add_argument("--warmup", action="store_true", help="compile the solver step with a one-chunk solve first, "
-                   "so the reported wall time excludes compilation (the benchmark's setting)")
     p.add_argument("--out", default=None, help="experiment folder (default: data/EXPERIMENT)")
     p.add_argument("--grid", type=_shape, default=None, help="override the config's grid, e.g. 32,32,9,16")
     p.add_argument("--n-train", type=int, default=None, help="override the number of training samples")
