@@ -196,7 +196,7 @@ def test_signed_distance_is_bounded_by_the_map_edge():
         assert (sd <= free + 1e-6 * (1 + np.abs(free))).all(), where
 
 
-FAR_CELLS = 1e18  # FUZZ FINDING D: points farther than this (in cells) sample the wrong cell
+FAR_CELLS = 1e18  # the far points tested by the general property (finding D below covers beyond)
 
 
 def test_sample_raster_reads_the_block_it_needs_and_beyond_the_map_is_outside():
@@ -234,7 +234,7 @@ def test_sample_raster_reads_the_block_it_needs_and_beyond_the_map_is_outside():
 
 
 def test_fuzz_finding_d_sample_raster_far_points_read_the_wrong_cells():
-    """FUZZ FINDING D (issue 40; fails until fixed): a point more than ~9.2e18 cells from the raster (|x| ≳
+    """FUZZ FINDING D (issue 40; fixed): a point more than ~9.2e18 cells from the raster (|x| ≳
     9.2e18·resolution m: a map origin or an odometry position of 1e20 m, both accepted as finite) overflows the
     int64 casts in sample_raster (block bounds; scipy's coordinates): (1) that point samples the opposite edge, not
     the nearest one; (2) every other point of the same call samples a wrong cell, even with ``outside``; and ±inf
@@ -348,35 +348,19 @@ def within_limits(p: CarParams, v: float, linear: float, angular: float, dt: flo
     return p.v_min <= linear <= p.v_max and abs(angular) <= (bound if exact else bound * (1 + 1e-12) + 1e-300)
 
 
-def known_finding(p: CarParams, settings: safety_filter.FilterSettings, state: np.ndarray, grad: np.ndarray) -> str:
-    """Which FUZZ FINDING below a filter case falls under ("" for none): the general properties skip those cases,
-    each finding has its own failing test.  Drop a clause when its finding is fixed."""
-    if settings.mode == "qp" and p.tracking_error > 0:
-        return "A"
-    if abs(state[2]) > 1e300:
-        return "B"
-    g = np.array([grad[2] * p.a_max, grad[3] * state[2] * p.kappa_max])
-    if settings.mode == "qp" and bool(((g != 0) & (np.abs(g) < 1e-290)).any()):
-        return "C"
-    return ""
-
-
 def test_filter_command_is_finite_and_within_the_limits():
     """filter_command for random robots, settings, states, values, gradients (NaN/Inf/1e308 included) and nominal
     commands: a finite command within the limits (v_min ≤ linear ≤ v_max, |angular| ≤ κ_max·max(|v|, |v′|)), or,
     for a non-finite input, exactly a stop; ``clipped`` exactly when the nominal was beyond the limits; and it
     agrees with filter_batch."""
     rng = rng_for("filter_command")
-    seen = {"pass": 0, "clipped": 0, "intervened": 0, "stop": 0, "finding": 0}
+    seen = {"pass": 0, "clipped": 0, "intervened": 0, "stop": 0}
     for case in range(2500):
         p, settings = random_params(rng), random_settings(rng)
         state = random_state(rng, p)
         value = number(rng, 0.5, 0.15)
         grad = np.array([number(rng, 1.0, 0.08) for _ in range(4)])
         linear, angular = random_twist(rng, p)
-        if known_finding(p, settings, state, grad):
-            seen["finding"] += 1
-            continue
         where = f"case {case}: {p}, {settings}, state {state.tolist()}, V {value}, grad {grad.tolist()}, " \
                 f"nominal ({linear}, {angular})"
         d = safety_filter.filter_command(p, settings, state, value, grad, linear, angular)
@@ -409,11 +393,6 @@ def test_filter_batch_is_finite_within_the_limits_and_rows_are_independent():
         values = np.array([number(rng, 0.5, 0.05) for _ in range(n)])
         grads = np.array([[number(rng, 1.0, 0.03) for _ in range(4)] for _ in range(n)])
         nominal = np.stack([random_twist(rng, p) for _ in range(n)])
-        keep = np.array([not known_finding(p, settings, s, g) for s, g in zip(states, grads, strict=True)])
-        if not keep.any():
-            continue
-        states, values, grads, nominal = states[keep], values[keep], grads[keep], nominal[keep]
-        n = len(states)
         out, changed = safety_filter.filter_batch(p, settings, states, values, grads, nominal)
         assert out.shape == (n, 2) and changed.shape == (n,), f"case {case}"
         bad = ~(np.isfinite(states).all(-1) & np.isfinite(values) & np.isfinite(grads).all(-1)
@@ -434,7 +413,7 @@ def test_filter_batch_is_finite_within_the_limits_and_rows_are_independent():
 
 
 def test_fuzz_finding_a_qp_with_a_speed_dependent_disturbance_raises():
-    """FUZZ FINDING A (issue 40; fails until fixed): ``qp`` mode with a car whose disturbance grows with speed
+    """FUZZ FINDING A (issue 40; fixed): ``qp`` mode with a car whose disturbance grows with speed
     (tracking_error > 0, CarParams.product()) raises ValueError from minimal_change (it reads params.d_max); the
     node catches it and publishes a stop for every command: ``qp`` is unusable with such a model card."""
     p = CarParams.product()
@@ -445,7 +424,7 @@ def test_fuzz_finding_a_qp_with_a_speed_dependent_disturbance_raises():
 
 
 def test_fuzz_finding_b_a_huge_speed_gives_an_infinite_turn_rate():
-    """FUZZ FINDING B (issue 40; fails until fixed): at a finite but huge speed (|v| ≳ 1e300) the angular bound
+    """FUZZ FINDING B (issue 40; fixed): at a finite but huge speed (|v| ≳ 1e300) the angular bound
     κ_max·|v| overflows to inf, and the safe control's turn rate v·κ is inf: filter_command returns angular ±inf
     (switch/blend/qp).  The node clips v to the model's range first, so brt_node does not reach it; other
     callers (studies) can."""
@@ -457,7 +436,7 @@ def test_fuzz_finding_b_a_huge_speed_gives_an_infinite_turn_rate():
 
 
 def test_fuzz_finding_c_qp_at_a_subnormal_speed_returns_nan():
-    """FUZZ FINDING C (issue 40; fails until fixed, reachable in brt_node): ``qp`` mode, the paper car (the bundled
+    """FUZZ FINDING C (issue 40; fixed; it was reachable in brt_node): ``qp`` mode, the paper car (the bundled
     model's), V ≤ ε, ∂V/∂v < 0 and a subnormal speed (odometry twist.linear.x = 1e-310: finite, inside [v_min,
     v_max], so the node passes it on).  Then g = (0, ∂V/∂θ·v·κ_max) has one exact zero (the speed limit) and one
     subnormal entry; the kink (sign(g) − z0)/g overflows to inf, inf·0 = NaN, and filter_command returns
@@ -482,8 +461,6 @@ def test_within_limits_nominal_far_from_obstacles_passes_bit_for_bit():
         angular = float(rng.uniform(-1, 1) * bound) if rng.random() < 0.9 else float(rng.choice([-bound, bound]))
         value = float(rng.uniform(100, 1e6))
         grad = rng.normal(size=4)
-        if known_finding(p, settings, state, grad):
-            continue
         d = safety_filter.filter_command(p, settings, state, value, grad, linear, angular)
         where = f"case {case}: {p}, {settings}, state {state.tolist()}, nominal ({linear}, {angular}) -> {d}"
         assert (d.linear, d.angular, d.intervened, d.clipped, d.reason) == (linear, angular, False, False, "pass"), \
@@ -685,7 +662,6 @@ def test_dds_fuzz_node_survives_and_never_publishes_beyond_the_limits():
     assert result["ready"], f"the node never filtered: {summary} | {log[-2000:]}"
     assert alive, f"brt_node died: {log[-3000:]}"
     assert code == 0 and "Traceback" not in log, log[-3000:]
-    # FUZZ FINDING C (see test_fuzz_finding_c_...) shows here as non-finite outputs in qp mode
     assert not result["violations"], f"{len(result['violations'])} bad outputs, first: {result['violations'][:5]}"
     assert result["max_status_gap_s"] < 2.0 and result["recovered"], summary
     assert not errors, errors[:10]

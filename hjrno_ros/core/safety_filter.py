@@ -25,7 +25,9 @@ import math
 
 import numpy as np
 
-from hjrno_ros.core.dynamics import CarParams, car_optimal_control, feasible_acceleration
+from hjrno_ros.core.dynamics import CarParams, car_disturbance_bound, car_optimal_control, feasible_acceleration
+
+TINY = 1e-12  # |∂(∇V·f)/∂z| below this is no lever: treated as zero (a subnormal one overflowed the qp's kinks)
 
 MODES = ("switch", "blend", "qp")
 
@@ -59,10 +61,12 @@ class Decision:
 
 
 def twist_to_control(params: CarParams, states: np.ndarray, twist: np.ndarray, dt: float) -> np.ndarray:
-    """What a base does with twists ``(n, 2)``: a = (v_cmd − v)/dt within ±a_max, κ = ω / v within ±κ_max."""
+    """What a base does with twists ``(n, 2)``: a = (v_cmd − v)/dt within ±a_max, κ = ω / v within ±κ_max
+    (v kept 1 mm/s away from zero with its sign, so reversing turns the right way)."""
     v = states[..., 2]
     accel = np.clip((twist[..., 0] - v) / dt, -params.a_max, params.a_max)
-    curvature = np.clip(twist[..., 1] / np.maximum(v, 1e-3), -params.kappa_max, params.kappa_max)
+    v_div = np.where(np.abs(v) < 1e-3, np.where(v < 0, -1e-3, 1e-3), v)
+    curvature = np.clip(twist[..., 1] / v_div, -params.kappa_max, params.kappa_max)
     return np.stack([accel, curvature], -1)
 
 
@@ -109,8 +113,9 @@ def minimal_change(params: CarParams, settings: FilterSettings, states: np.ndarr
     g = np.column_stack([grads[:, 2], grads[:, 3] * v]) * half  # ∂(∇V·f)/∂z
     at_limit = feasible_acceleration(params, v, np.sign(g[:, 0]), np) == 0  # speed limit: a cannot help
     g[:, 0] = np.where(at_limit, 0.0, g[:, 0])
+    g = np.where(np.abs(g) < TINY, 0.0, g)
     drift = grads[:, 0] * v * np.cos(states[:, 3]) + grads[:, 1] * v * np.sin(states[:, 3])
-    drift -= params.d_max * np.linalg.norm(grads[:, :2], axis=-1)  # worst-case disturbance
+    drift -= car_disturbance_bound(params, v) * np.linalg.norm(grads[:, :2], axis=-1)  # worst-case disturbance
     b = -settings.decay_rate * (values - settings.epsilon) - drift
     z0 = np.clip(nominal / half, -1.0, 1.0)
     safe_g = np.where(g == 0, 1.0, g)
@@ -154,8 +159,9 @@ def filter_batch(params: CarParams, settings: FilterSettings, states: np.ndarray
                  grads: np.ndarray, nominal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """:func:`filter_command` for ``n`` robots at once: commands ``(n, 2)`` and intervened ``(n,)``.
 
-    Nominal commands are clipped to the limits first, and so is the result.  Non-finite inputs fail
-    closed (zero command), as in the scalar version."""
+    Nominal commands are clipped to the limits first, and so is the result.  Non-finite inputs, and any
+    non-finite result (a finite but huge speed overflows v·u₂), fail closed (zero command), as in the
+    scalar version."""
     bad = ~(np.isfinite(states).all(-1) & np.isfinite(values) & np.isfinite(grads).all(-1)
             & np.isfinite(nominal).all(-1))
     states, values, grads, nominal = (np.where(bad[(...,) + (None,) * (a.ndim - 1)], 0.0, a)
@@ -170,5 +176,6 @@ def filter_batch(params: CarParams, settings: FilterSettings, states: np.ndarray
         out = w[:, None] * nominal + (1 - w[:, None]) * safe_twist(params, states, grads, settings.dt)
         changed = w < 1.0
     out = clip_to_limits(params, states, out, settings.dt)
+    bad |= ~np.isfinite(out).all(-1)
     out[bad] = 0.0
     return out, changed | bad

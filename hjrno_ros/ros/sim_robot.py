@@ -3,7 +3,7 @@
 It latches the map (reliable + transient local), publishes odometry in the map frame at
 ``odom_rate``, sends a careless goal-seeking TwistStamped command stream at ``cmd_rate`` (it
 ignores obstacles: brt_node must keep it safe), and integrates the dynamic Dubins car with the
-*filtered* command and a random disturbance ‖d‖ ≤ d_max.  A filtered command older than
+*filtered* command and a random disturbance ‖d‖ ≤ δ·|v| + d₀.  A filtered command older than
 ``cmd_timeout`` counts as zero (brake), as a real base would.  It records the trajectory,
 interventions, command latency and value-grid snapshots for :mod:`hjrno_ros.tools.demo`.
 """
@@ -25,7 +25,7 @@ from rclpy.node import Node
 from std_msgs.msg import String
 
 from hjrno_ros.core import safety_filter
-from hjrno_ros.core.dynamics import CarParams
+from hjrno_ros.core.dynamics import CarParams, car_disturbance_bound
 from hjrno_ros.core.geometry import union_sdf
 from hjrno_ros.ros.messages import LATCHED, occupancy_array, occupancy_message, odometry_message
 from hjrno_ros.studies import closed_loop
@@ -86,7 +86,7 @@ class SimRobot(Node):
         if self.running and self.log.collided_at is None:
             twist = self._filtered if time.monotonic() - self._filtered_at <= self.cmd_timeout else np.zeros(2)
             u = safety_filter.twist_to_control(self.params, self.x, twist[None], self.control_period)
-            d = ball(self.rng, (1,), self.params.d_max)
+            d = car_disturbance_bound(self.params, self.x[:, 2])[:, None] * ball(self.rng, (1,), 1.0)
             self.x = closed_loop.rk4(self.params, self.x, u, d, self.dt)
             t = self.now()
             self.log.states.append((t, *self.x[0], self._intervened))

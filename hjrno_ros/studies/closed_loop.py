@@ -5,7 +5,7 @@ table and the car's limits.  In each episode a careless nominal controller (goal
 straight-line driving) sends twists (linear m/s, angular rad/s) every ``dt``; a filter may
 replace them; the robot turns the twist into controls (a, κ) as a real base would (speed set
 point reached at most at a_max, curvature ω / v within κ_max) and integrates the car over ``dt``
-(RK4) with a bounded disturbance: random in the ball ‖d‖ ≤ d_max, or worst-case from the
+(RK4) with a bounded disturbance: random in the ball ‖d‖ ≤ δ·|v| + d₀, or worst-case from the
 ground-truth gradient.  All episodes of a world run as one batch; every filter sees the same
 starts, goals and noise.  An episode ends on collision (l ≤ 0), goal reached, leaving the
 window, or time out.
@@ -19,7 +19,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from hjrno_ros.core.dynamics import CarParams, car_f, car_worst_disturbance
+from hjrno_ros.core.dynamics import CarParams, car_disturbance_bound, car_f, car_worst_disturbance
 from hjrno_ros.core.geometry import union_sdf
 from hjrno_ros.core.grids import wrap_angle
 from hjrno_ros.core.safety_filter import twist_to_control
@@ -65,7 +65,8 @@ class EpisodeSettings:
 @dataclasses.dataclass
 class Episodes:
     """The fixed part of a world's episodes: starts (n, 4), goals (n, 2), controller / disturbance
-    kind per episode, and the random disturbance sequence (steps, n, 2) shared by every filter."""
+    kind per episode, and the random disturbance sequence (steps, n, 2) shared by every filter, in the
+    unit disk: each step scales it by the car's bound at the state, δ·|v| + d₀."""
 
     starts: np.ndarray
     goals: np.ndarray
@@ -107,7 +108,7 @@ def draw_episodes(world: World, n: int, settings: EpisodeSettings, seed: int, fi
     index = first + np.arange(n)
     steps = int(round(settings.duration / settings.dt))
     return Episodes(starts, goals[pick], np.array(CONTROLLERS)[index % 2], np.array(DISTURBANCES)[(index // 2) % 2],
-                    ball(rng, (steps, n), p.d_max))
+                    ball(rng, (steps, n), 1.0))
 
 
 def nominal_twist(params: CarParams, states: np.ndarray, goals: np.ndarray, controller: np.ndarray) -> np.ndarray:
@@ -160,7 +161,7 @@ def run_episodes(world: World, episodes: Episodes, filt: Filter | None, settings
             decisions += idx.size
             interventions[idx] += intervened
         u = twist_to_control(p, xa, twist, dt)
-        d = episodes.noise[k, idx]
+        d = car_disturbance_bound(p, xa[:, 2])[:, None] * episodes.noise[k, idx]  # ‖d‖ ≤ δ·|v| + d₀
         if worst[idx].any():
             w = worst[idx]
             d[w] = car_worst_disturbance(p, xa[w], world.truth.gradient(xa[w]))
