@@ -24,7 +24,7 @@ from hjrno_ros.core.grids import GridSpec
 
 CARD_FORMAT = "hjrno-model-1"
 REQUIRED = ("format", "kind", "config", "inputs", "grid", "dynamics")
-KINDS = ("fno", "tno", "cnn", "ensemble")
+KINDS = ("fno", "tno", "cnn", "ensemble", "solver")  # "solver": no weights, the HJ solver computes V (small maps)
 DYNAMICS_FIELDS = ("model", *(f.name for f in dataclasses.fields(CarParams)))  # a car card's dynamics
 DEFAULT_EPSILON = 0.1  # m: a card without a calibrated margin
 # inputs.kind -> (dynamics class, grid axes, periodic axis, its name); the filter takes "car" models only
@@ -191,10 +191,12 @@ class ModelCard:
         if family not in FAMILIES:
             raise ValueError(f"{where}: field 'inputs.kind' must be one of {tuple(FAMILIES)}, got {family!r}")
         channels = _field(inputs, "channels", list, where, "inputs.")
-        if not channels or not all(isinstance(c, str) for c in channels):
+        if kind == "solver" and family == "car":  # a solver card has no operator inputs
+            channels = None
+        elif not channels or not all(isinstance(c, str) for c in channels):
             raise ValueError(f"{where}: field 'inputs.channels' must be a non-empty list of names, got {channels!r}")
-        in_channels = _field(config, "in_channels", int, where, "config.")
-        if in_channels != len(channels):
+        in_channels = _field(config, "in_channels", int, where, "config.") if channels is not None else 0
+        if channels is not None and in_channels != len(channels):
             raise ValueError(f"{where}: field 'config.in_channels' is {in_channels}, but inputs.channels lists "
                              f"{len(channels)}: {channels}")
         grid = _grid(d, where, family)
@@ -221,6 +223,21 @@ class ModelCard:
                    dataset=dict(_optional(d, "dataset", dict, where, {})), command=command, data=d,
                    source=Path(source), parameters=_optional(d, "parameters", int, where, None),
                    training=dict(_optional(d, "training", dict, where, {})))
+
+    @classmethod
+    def solver(cls, dynamics: CarParams, cell: float, speeds: int = 9, headings: int = 16, window: float = 10.0,
+               epsilon: float = DEFAULT_EPSILON) -> dict:
+        """A solver card's JSON: the car ``dynamics`` on an x-y grid of ``cell`` m (a ``window`` m square around
+        the robot for the published value grid) with ``speeds`` × ``headings`` nodes; no weights.  The node
+        then filters with the HJ solver's table over the whole map (background refinement from the target)."""
+        n = int(round(window / cell)) + 1
+        grid = {"lo": [-window / 2, -window / 2, dynamics.v_min, -math.pi],
+                "hi": [window / 2, window / 2, dynamics.v_max, math.pi], "shape": [n, n, speeds, headings],
+                "periodic": [3]}
+        return {"format": CARD_FORMAT, "kind": "solver", "config": {}, "inputs": {"kind": "car", "channels": []},
+                "grid": grid, "window": {"lo": grid["lo"][:2], "hi": grid["hi"][:2], "shape": [n, n]},
+                "dynamics": dynamics.as_dict(), "epsilon": float(epsilon),
+                "command": "ModelCard.solver(...)"}
 
     @classmethod
     def load(cls, stem: str | Path) -> ModelCard:

@@ -6,6 +6,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from hjrno_ros.core.model_card import ModelCard, paths
 
 CARD_LIMITS = ("a_max", "kappa_max", "v_max")  # node parameters that must agree with the model card
@@ -47,11 +49,34 @@ def resolve_model(model_path: str) -> Path:
                      "to a model stem")
 
 
+class SolverGrid:
+    """A solver card's stand-in for the learned value function: the grid, the car and the window of the published
+    value grid, but no operator (``local_table`` is None): values come from the solver's refined table only."""
+
+    def __init__(self, card: ModelCard) -> None:
+        self.card, self.grid, self.params, self.window = card, card.grid, card.dynamics, card.window
+        self.shape = tuple(card.grid.shape[:2])
+
+    def window_points(self, center: tuple[float, float], shape: tuple[int, int] | None = None) -> np.ndarray:
+        nx, ny = shape or self.shape
+        x = np.linspace(self.grid.lo[0], self.grid.hi[0], nx) + center[0]
+        y = np.linspace(self.grid.lo[1], self.grid.hi[1], ny) + center[1]
+        return np.stack(np.meshgrid(x, y, indexing="ij"), -1)
+
+    def local_table(self, *args: Any) -> None:
+        return None
+
+
 def load_model(cfg: dict[str, Any]) -> tuple[ModelCard, Any, Path]:
     """(card, learned value function, stem) for the node's parameters; the card is checked before torch and the
-    weights are loaded.  ValueError with one line."""
+    weights are loaded.  A solver card needs ``refine_horizon`` > 0 and loads no weights.  ValueError, one line."""
     stem = resolve_model(cfg["model_path"])
     card = ModelCard.load(stem)
+    if card.kind == "solver":
+        if cfg["refine_horizon"] <= 0:
+            raise ValueError(f"{stem} is a solver card (no weights): set refine_horizon > 0 (simulated s of the "
+                             "solver over the map)")
+        return card, SolverGrid(card), stem
     limits = card.dynamics.as_dict()
     for name in CARD_LIMITS:
         if cfg[name] != -1.0 and abs(cfg[name] - limits[name]) > LIMIT_TOLERANCE:

@@ -164,7 +164,8 @@ class BrtNode(LifecycleNode):
         self._last_nominal: tuple[float, float] | None = None  # (linear, angular) of the last filtered nominal
         self.states = StateInput(cfg["odom_topic"], cfg["pose_topic"])
         refinement = (Refinement(self.vf.grid, str(self.model_stem), cfg["refine_horizon"], cfg["refine_stage"],
-                                 int(cfg["refine_cpus"])) if cfg["refine_horizon"] > 0 else None)
+                                 int(cfg["refine_cpus"]), from_target=self.card.kind == "solver")
+                      if cfg["refine_horizon"] > 0 else None)
         self.values = ValueWorker(self.vf, self.maps, self.states, lambda: self._cfg, self._publish_value, self._log,
                                   refinement)
 

@@ -31,8 +31,13 @@ class RefinedValue:
 
 
 class Refinement:
-    def __init__(self, model_grid: Any, model: str, horizon: float, stage: float, cpus: int) -> None:
+    """``from_target``: a solver card's refinement, which starts from the target l: its stages before the solve
+    settles under-approximate the tube (V ≥ V∞), so only a settled table is used."""
+
+    def __init__(self, model_grid: Any, model: str, horizon: float, stage: float, cpus: int,
+                 from_target: bool = False) -> None:
         self.model_grid, self.model, self.horizon, self.stage = model_grid, model, horizon, stage
+        self.from_target = from_target
         self.process = background.BackgroundRefinement(cpus)
         self.version: int | None = None  # map version the refinement runs (or ran) for
         self.error = ""
@@ -73,7 +78,7 @@ class Refinement:
     def usable(self, m: MapData, state: RobotState) -> RefinedValue | None:
         """The refined table if it is the current map's and the robot is two x-y cells inside it."""
         r = self.refined
-        if r is None or r.map_version != m.version:
+        if r is None or r.map_version != m.version or (self.from_target and not r.settled):
             return None
         g = r.table.grid
         margin = 2 * np.asarray(g.spacings[:2])

@@ -164,6 +164,8 @@ class ValueWorker:
         v = min(max(state.v, p.v_min), p.v_max)
         if refined is None:
             table = self.vf.local_table(self.v0(m, self.vf.window_points(center)), center, v, state.theta)
+            if table is None:  # a solver card: no operator, wait for the solver's table
+                return
         else:
             table = refined.table
         latency = 1e3 * (time.perf_counter() - start)
@@ -199,7 +201,7 @@ class ValueWorker:
             return None, self.error
         val = self.value
         if val is None:
-            return None, "no value function yet (waiting for inference)"
+            return None, "no value function yet (waiting for inference or the solver)"
         age = now - val.computed
         if age > timeout:
             return None, f"value is {age:.2f} s old (value_timeout {timeout:g} s)"

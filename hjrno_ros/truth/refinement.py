@@ -140,15 +140,21 @@ def run_request(workdir: Path) -> None:
     """Child process body: read ``workdir/request``, write each stage's table to ``workdir/value``."""
     from safetensors.numpy import save_file
 
+    from hjrno_ros.core.model_card import ModelCard
     from hjrno_ros.learning.value_function import LearnedValueFunction
     from hjrno_ros.truth.systems import DynamicDubinsCar
 
     grid, v0, meta = read_table(workdir / REQUEST)
-    vf = LearnedValueFunction(meta["model"], threads=1)
+    card = ModelCard.load(meta["model"])
     start = time.perf_counter()
-    initial = warm_start(vf, v0, grid)
-    for done, table, settled in refine(DynamicDubinsCar(vf.params), grid, broadcast_target(v0, grid), initial,
-                                       float(meta["horizon"]), float(meta["stage"])):
+    target = broadcast_target(v0, grid)
+    if card.kind == "solver":  # no operator: the solve starts from the target itself
+        params, initial = card.dynamics, target
+    else:
+        vf = LearnedValueFunction(meta["model"], threads=1)
+        params, initial = vf.params, warm_start(vf, v0, grid)
+    for done, table, settled in refine(DynamicDubinsCar(params), grid, target, initial, float(meta["horizon"]),
+                                       float(meta["stage"])):
         info = {"grid": meta["grid"], "horizon": repr(done), "settled": str(settled),
                 "wall_s": f"{time.perf_counter() - start:.2f}", "cpus": str(len(os.sched_getaffinity(0)))}
         atomic_write(workdir / RESULT, lambda tmp, t=table, i=info: save_file({"values": t}, tmp, metadata=i))

@@ -1,0 +1,128 @@
+"""The product model's behaviour scenes (issue 41): a robot that can stop and reverse, near walls.
+
+One 8 m × 6 m map holds every scene: a wall 1 m ahead of a robot at rest, a 1.6 m wide dead-end corridor,
+a wall behind a reversing robot, a robot beside a wall asked to spin, a robot inside a wall.  Each scene is
+a start state (x, y, v, θ), a constant nominal command and a duration; :func:`judge` says what must hold.
+The scenes run offline against a table (:func:`simulate`) and over DDS with brt_node
+(:mod:`hjrno_ros.ros.scene_driver`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from hjrno_ros.core import geometry, safety_filter
+from hjrno_ros.core.dynamics import CarParams, car_disturbance_bound
+from hjrno_ros.core.value_table import ValueTable
+from hjrno_ros.studies.closed_loop import rk4
+from hjrno_ros.studies.simulation import ball
+
+RESOLUTION = 0.05  # m
+ORIGIN = (0.0, 0.0)
+SIZE = (160, 120)  # cells: 8 m x 6 m
+WALLS = (  # x0, x1, y0, y1 in m
+    (6.0, 6.2, 0.0, 6.0),  # the right wall
+    (0.8, 4.6, 3.4, 3.6),  # the corridor's lower wall
+    (0.8, 4.6, 5.2, 5.4),  # its upper wall: 1.6 m between them
+    (4.4, 4.6, 3.4, 5.4),  # its dead end
+    (0.0, 0.2, 0.0, 3.0),  # the wall behind the reversing robot
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class Scene:
+    name: str
+    start: tuple[float, float, float, float]  # x, y, v, θ
+    nominal: tuple[float, float]  # linear m/s, angular rad/s
+    seconds: float
+    expect: str
+
+
+SCENES = (
+    Scene("rest_stop", (5.0, 1.5, 0.0, 0.0), (0.0, 0.0), 3.0, "at rest 1 m from a wall, nominal stop: stays at rest"),
+    Scene("rest_forward", (5.0, 1.5, 0.0, 0.0), (0.3, 0.0), 8.0, "nominal 0.3 m/s at the wall 1 m ahead: stops before"),
+    Scene("dead_end", (1.2, 4.4, 0.3, 0.0), (0.3, 0.0), 14.0,
+          "1.6 m dead-end corridor at 0.3 m/s: no collision, |v| never above the nominal's"),
+    Scene("reverse", (1.2, 1.5, -0.3, 0.0), (-0.3, 0.0), 7.0, "reversing at 0.3 m/s toward a wall behind: braked"),
+    Scene("spin", (5.5, 1.0, 0.0, 0.0), (0.0, 1.0), 3.0, "spin in place 0.5 m from a wall: no motion added"),
+    Scene("inside_wall", (6.1, 2.0, 0.0, 0.0), (0.3, 0.5), 2.0, "inside a wall: never more speed than the nominal"),
+)
+
+
+def scene_map() -> np.ndarray:
+    """The scenes' occupancy raster ``[ix, iy]`` (0 free, 100 occupied)."""
+    occ = np.zeros(SIZE, np.int8)
+    for x0, x1, y0, y1 in WALLS:
+        occ[int(round(x0 / RESOLUTION)):int(round(x1 / RESOLUTION)),
+            int(round(y0 / RESOLUTION)):int(round(y1 / RESOLUTION))] = 100
+    return occ
+
+
+def clearance(points: np.ndarray) -> np.ndarray:
+    """Signed distance (m) of x-y ``points`` to the walls and the map's edge."""
+    sd = geometry.occupancy_signed_distance(scene_map(), RESOLUTION)
+    return geometry.sample_raster(sd, ORIGIN, RESOLUTION, points, outside=-RESOLUTION)
+
+
+def judge(scene: Scene, states: np.ndarray, outputs: np.ndarray) -> list[str]:
+    """What went wrong in a run: ``states`` (k, 4) of the base, ``outputs`` (m, 2) the filtered commands."""
+    problems = []
+    start_clear = clearance(np.asarray(scene.start[:2])[None])[0] > 0
+    if start_clear and (clearance(states[:, :2]) <= 0).any():
+        problems.append(f"collision (minimum clearance {clearance(states[:, :2]).min():.3f} m)")
+    speed = abs(scene.nominal[0])
+    if len(outputs) and np.abs(outputs[:, 0]).max() > max(speed, abs(scene.start[2])) + 1e-9:
+        problems.append(f"output speed {np.abs(outputs[:, 0]).max():.3f} above the nominal's {speed}")
+    if scene.name in ("rest_stop", "spin"):
+        moved = np.linalg.norm(states[:, :2] - states[0, :2], axis=-1).max()
+        if moved > 1e-3 or np.abs(states[:, 2]).max() > 1e-6:
+            problems.append(f"moved {moved:.4f} m from rest")
+        if len(outputs) and np.abs(outputs[:, 0]).max() > 0:
+            problems.append("a non-zero speed was commanded at rest")
+    if scene.name in ("rest_forward", "reverse", "dead_end") and abs(states[-1, 2]) > 0.05:
+        problems.append(f"still moving at {states[-1, 2]:.3f} m/s at the end")
+    return problems
+
+
+def simulate(params: CarParams, table: ValueTable, settings: safety_filter.FilterSettings, scene: Scene,
+             seed: int = 0, dt: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+    """The scene offline: the base integrates the filtered command (RK4, ``dt``) with a random disturbance
+    ‖d‖ ≤ δ·|v| + d₀; the filter runs every control period.  (states (k, 4), outputs (m, 2))."""
+    rng = np.random.default_rng(seed)
+    x = np.array([scene.start], float)
+    states, outputs = [x[0].copy()], []
+    twist = np.zeros((1, 2))
+    every = max(1, int(round(settings.dt / dt)))
+    for k in range(int(round(scene.seconds / dt))):
+        if k % every == 0:
+            s = x[0].copy()
+            s[2] = np.clip(s[2], params.v_min, params.v_max)
+            values, grads = table.value_and_gradient(s)
+            d = safety_filter.filter_command(params, settings, s, float(values[0]), grads[0], *scene.nominal)
+            twist = np.array([[d.linear, d.angular]])
+            outputs.append(twist[0].copy())
+        u = safety_filter.twist_to_control(params, x, twist, settings.dt)
+        noise = car_disturbance_bound(params, x[:, 2])[:, None] * ball(rng, (1,), 1.0)
+        x = rk4(params, x, u, noise, dt)
+        states.append(x[0].copy())
+    return np.array(states), np.array(outputs)
+
+
+def solve_scene_table(params: CarParams, cell: float = 0.2, speeds: int = 7, headings: int = 16,
+                      horizon: float = 60.0) -> ValueTable:
+    """The ground truth for the scenes' map: the solver from the target (obstacles grown by h/√2 of the grid, as
+    the node does), until it settles or ``horizon`` simulated s."""
+    from hjrno_ros.core.model_card import ModelCard
+    from hjrno_ros.truth import refinement
+    from hjrno_ros.truth.systems import DynamicDubinsCar
+
+    card = ModelCard.from_dict(ModelCard.solver(params, cell, speeds, headings))
+    far = (ORIGIN[0] + SIZE[0] * RESOLUTION, ORIGIN[1] + SIZE[1] * RESOLUTION)
+    grid = refinement.map_grid(card.grid, ORIGIN, far)
+    xy = np.stack(np.meshgrid(grid.axis(0), grid.axis(1), indexing="ij"), -1)
+    v0 = (clearance(xy) - grid.half_cell_diagonal).astype(np.float32)
+    target = refinement.broadcast_target(v0, grid)
+    *_, (_, values, _) = refinement.refine(DynamicDubinsCar(params), grid, target, target, horizon, horizon)
+    return ValueTable(grid, values)
