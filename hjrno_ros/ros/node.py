@@ -17,30 +17,24 @@ from __future__ import annotations
 
 import json
 import math
-import signal
 import sys
 import time
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-import rclpy
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped, Twist, TwistStamped
 from nav_msgs.msg import OccupancyGrid, Odometry
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
-from rclpy.qos import qos_profile_sensor_data
-from rclpy.signals import SignalHandlerOptions
-from std_msgs.msg import Float32MultiArray, String
+from std_msgs.msg import String
 from std_srvs.srv import SetBool
 
 from hjrno_ros.core import safety_filter
 from hjrno_ros.ros import messages, parameters, status
 from hjrno_ros.ros.inputs import MapData, MapInput, RobotState, StateInput
+from hjrno_ros.ros.interfaces import Interfaces
 from hjrno_ros.ros.model_files import load_model
 from hjrno_ros.ros.refinement import Refinement
 from hjrno_ros.ros.value_worker import ValueWorker, table_state
@@ -62,7 +56,7 @@ class BrtNode(LifecycleNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         self._log = status.ThrottledLog(self.get_logger())
-        self._entities: list[tuple[Callable[[Any], Any], Any]] = []  # (destroy, entity) made by configure
+        self.io: Interfaces | None = None  # publishers, subscriptions, timers, service: made by configure
         self.configured = self.active = self._plain = False
         self.startup_error = ""
         self.type_mismatch: list[str] = []
@@ -169,46 +163,19 @@ class BrtNode(LifecycleNode):
         self.values = ValueWorker(self.vf, self.maps, self.states, lambda: self._cfg, self._publish_value, self._log,
                                   refinement)
 
-    def _keep(self, destroy: Callable[[Any], Any], entity: Any) -> Any:
-        self._entities.append((destroy, entity))
-        return entity
-
-    def _destroy_interfaces(self) -> None:
-        for destroy, entity in reversed(self._entities):
-            destroy(entity)
-        self._entities.clear()
-
     def _create_interfaces(self, cfg: dict[str, Any]) -> None:
         self._stamped = bool(cfg["enable_stamped_cmd_vel"])
-        cmd_type = TwistStamped if self._stamped else Twist
-        cmd_group = MutuallyExclusiveCallbackGroup()  # command in/out and the stop timer: one cmd_vel writer
-        state_group, map_group, misc_group = (MutuallyExclusiveCallbackGroup() for _ in range(3))
-        pub, sub, timer = self.destroy_publisher, self.destroy_subscription, self.destroy_timer
-        self._cmd_pub = self._keep(pub, self.create_publisher(cmd_type, cfg["cmd_vel_out_topic"], 10))
-        self._grid_pub = self._keep(pub, self.create_publisher(OccupancyGrid, cfg["value_grid_topic"],
-                                                               messages.LATCHED))
-        self._value_pub = self._keep(pub, self.create_publisher(Float32MultiArray, cfg["value_topic"], 1))
-        self._status_pub = self._keep(pub, self.create_publisher(String, cfg["status_topic"], 10))
-        self._diag_pub = self._keep(pub, self.create_publisher(DiagnosticArray, "/diagnostics", 10))
-        self._keep(sub, self.create_subscription(OccupancyGrid, cfg["map_topic"], self._guard(self._on_map),
-                                                 messages.LATCHED, callback_group=map_group))
-        self._keep(sub, self.create_subscription(Odometry, cfg["odom_topic"], self._guard(self._on_odom),
-                                                 qos_profile_sensor_data, callback_group=state_group))
-        if cfg["pose_topic"]:
-            self._keep(sub, self.create_subscription(PoseWithCovarianceStamped, cfg["pose_topic"],
-                                                     self._guard(self._on_pose), messages.LATCHED,
-                                                     callback_group=state_group))
-        self._keep(sub, self.create_subscription(cmd_type, cfg["cmd_vel_in_topic"], self._on_cmd, 10,
-                                                 callback_group=cmd_group))
-        self._control_timer = self._keep(timer, self.create_timer(cfg["control_period"],
-                                                                  self._guard(self._on_control_timer),
-                                                                  callback_group=cmd_group))
-        self._keep(timer, self.create_timer(status.STATUS_PERIOD, self._guard(self._publish_status),
-                                            callback_group=misc_group))
-        self._keep(timer, self.create_timer(status.DIAGNOSTICS_PERIOD, self._guard(self._publish_diagnostics),
-                                            callback_group=misc_group))
-        self._keep(self.destroy_service, self.create_service(SetBool, "~/enable", self._on_enable,
-                                                             callback_group=misc_group))
+        self.io = Interfaces(self, cfg, {"map": self._guard(self._on_map), "odom": self._guard(self._on_odom),
+                                         "pose": self._guard(self._on_pose), "cmd": self._on_cmd,
+                                         "control": self._guard(self._on_control_timer),
+                                         "status": self._guard(self._publish_status),
+                                         "diagnostics": self._guard(self._publish_diagnostics),
+                                         "enable": self._on_enable})
+
+    def _destroy_interfaces(self) -> None:
+        if getattr(self, "io", None) is not None:
+            self.io.destroy()
+            self.io = None
 
     def _guard(self, callback: Callable[..., None]) -> Callable[..., None]:
         """An exception in any callback would stop the executor (and the node): log it instead."""
@@ -255,7 +222,7 @@ class BrtNode(LifecycleNode):
             return
         self._apply_settings(cfg)
         if "control_period" in names:
-            self._control_timer.timer_period_ns = int(cfg["control_period"] * 1e9)
+            self.io.control_timer.timer_period_ns = int(cfg["control_period"] * 1e9)
         if names & {"occupied_threshold", "costmap_threshold", "unknown_is_obstacle", "inflation_radius"}:
             self.maps.dirty = True
             self.values.wake()
@@ -323,32 +290,32 @@ class BrtNode(LifecycleNode):
         self._last_cmd = (now, header.frame_id if header is not None else "")
         self.counts.add("commands")
         if not self.enabled:
-            self._cmd_pub.publish(msg)
+            self.io.cmd.publish(msg)
             return
         start = time.perf_counter()
         try:
             self._filter(msg, t, header, now)
         except Exception as err:  # never let the command path die: fail closed
             self._log("error", f"filter failed ({type(err).__name__}: {err}); stopping")
-            self._cmd_pub.publish(self._command(0.0, 0.0, "", header))
+            self.io.cmd.publish(self._command(0.0, 0.0, "", header))
             self._record(safety_filter.stop(math.nan, "filter failed"), now, stop=True)
         self.command_times.add(time.perf_counter() - start)
 
     def _filter(self, msg: Twist | TwistStamped, t: Twist, header: Any, now: float) -> None:
         reason, data = self.check(now)
         if reason:
-            self._cmd_pub.publish(self._command(0.0, 0.0, "", header))
+            self.io.cmd.publish(self._command(0.0, 0.0, "", header))
             self._record(safety_filter.stop(math.nan, reason), now, stop=True)
             return
         decision = self._decide(data, (t.linear.x, t.angular.z))
         planar = t.linear.y == t.linear.z == t.angular.x == t.angular.y == 0.0  # a planar base has no other axes
         self._last_nominal = (t.linear.x, t.angular.z)
         if decision.intervened or decision.clipped or not planar:
-            self._cmd_pub.publish(self._command(decision.linear, decision.angular, "", header))
+            self.io.cmd.publish(self._command(decision.linear, decision.angular, "", header))
             if decision.clipped or not planar:
                 self.counts.add("clipped")
         else:
-            self._cmd_pub.publish(msg)  # within the limits and unchanged: bit for bit
+            self.io.cmd.publish(msg)  # within the limits and unchanged: bit for bit
         self._record(decision, now, stop=decision.reason.startswith("non-finite"))
 
     def _record(self, decision: safety_filter.Decision, now: float, stop: bool) -> None:
@@ -370,7 +337,7 @@ class BrtNode(LifecycleNode):
             return
         reason, _ = self.check(now)
         if reason:
-            self._cmd_pub.publish(self._command(0.0, 0.0, last[1]))
+            self.io.cmd.publish(self._command(0.0, 0.0, last[1]))
             self.counts.add("stops")
 
     def _on_enable(self, request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:
@@ -383,8 +350,8 @@ class BrtNode(LifecycleNode):
     # ------------------------------------------------------------------ outputs
     def _publish_value(self, values: np.ndarray, info: dict, m: MapData, state: RobotState) -> None:
         grid, arr = messages.value_messages(values, info, state.stamp_ns, m.stamp, self._cfg["value_clip"])
-        self._grid_pub.publish(grid)
-        self._value_pub.publish(arr)
+        self.io.grid.publish(grid)
+        self.io.value.publish(arr)
 
     def status(self) -> dict[str, Any]:
         """The status published as JSON on ``status_topic`` (also used by the diagnostics)."""
@@ -410,7 +377,7 @@ class BrtNode(LifecycleNode):
 
     def _publish_status(self) -> None:
         if self.active:
-            self._status_pub.publish(String(data=json.dumps(self.status())))
+            self.io.status.publish(String(data=json.dumps(self.status())))
 
     def _publish_diagnostics(self) -> None:
         if not self.active:
@@ -420,52 +387,10 @@ class BrtNode(LifecycleNode):
         if found and found != self.type_mismatch:
             self.get_logger().warning("command type mismatch: " + "; ".join(found))
         self.type_mismatch = found
-        self._diag_pub.publish(status.diagnostics(self.status(), self.get_name(), self.get_clock().now().to_msg()))
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Spin until SIGINT/SIGTERM (KeyboardInterrupt, see :mod:`hjrno_ros.ros.main`); 1 when the node cannot
-    start.  rclpy's own signal handler is off: the worker is stopped before the context shuts down."""
-    logger = rclpy.logging.get_logger(NODE_NAME)
-    try:
-        rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-        node = BrtNode()
-    except KeyboardInterrupt:
-        logger.info("interrupted during start-up")
-        rclpy.try_shutdown()
-        return 0
-    except Exception as err:  # e.g. a parameter override of the wrong type: one line
-        logger.fatal(f"cannot start: {type(err).__name__}: {err}")
-        rclpy.try_shutdown()
-        return 1
-    # One executor thread: measured here, a relay's p95 latency was 1.4 ms single-threaded vs 6.6 ms
-    # with rclpy's MultiThreadedExecutor. Inference runs in the node's own worker thread anyway.
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    code = 0
-    try:
-        if node.get_parameter("autostart").value:
-            node.start()  # plain mode; with autostart false a lifecycle manager configures and activates
-        executor.spin()
-    except StartupError as err:
-        from hjrno_ros.ros.main import interrupted
-
-        if not interrupted():  # an interrupt during the model load can surface as an import error
-            logger.fatal(f"cannot start: {err}")
-            code = 1
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second interrupt must not break the clean stop
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)
-        node.stop()
-        executor.shutdown(timeout_sec=2.0)
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+        self.io.diagnostics.publish(status.diagnostics(self.status(), self.get_name(), self.get_clock().now().to_msg()))
 
 
 if __name__ == "__main__":
-    from hjrno_ros.ros.main import main as entry
+    from hjrno_ros.ros.main import main
 
-    sys.exit(entry())
+    sys.exit(main())

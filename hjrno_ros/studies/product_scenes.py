@@ -126,3 +126,26 @@ def solve_scene_table(params: CarParams, cell: float = 0.2, speeds: int = 7, hea
     target = refinement.broadcast_target(v0, grid)
     *_, (_, values, _) = refinement.refine(DynamicDubinsCar(params), grid, target, target, horizon, horizon)
     return ValueTable(grid, values)
+
+
+def run_all(params: CarParams, out: str | None = None, epsilon: float = 0.1) -> str:
+    """Every scene in every filter mode against the solved table (``hjrno simulate --scenes product``): a
+    markdown table (also written to ``out``/scenes.md when given)."""
+    from pathlib import Path
+
+    table = solve_scene_table(params)
+    lines = [f"# Product scenes ({params})", "",
+             "| scene | mode | problems | min clearance m | final speed m/s | max output speed m/s |",
+             "| --- | --- | --- | --- | --- | --- |"]
+    for scene in SCENES:
+        for mode in safety_filter.MODES:
+            states, outputs = simulate(params, table, safety_filter.FilterSettings(epsilon=epsilon, mode=mode), scene)
+            problems = judge(scene, states, outputs)
+            lines.append(f"| {scene.name} | {mode} | {'; '.join(problems) or 'none'} | "
+                         f"{clearance(states[:, :2]).min():.3f} | {states[-1, 2]:.3f} | "
+                         f"{np.abs(outputs[:, 0]).max() if len(outputs) else 0.0:.3f} |")
+    text = "\n".join(lines) + "\n"
+    if out is not None:
+        Path(out).mkdir(parents=True, exist_ok=True)
+        (Path(out) / "scenes.md").write_text(text)
+    return text
