@@ -1,5 +1,6 @@
 """Shared fixtures: the tiny ``ci`` dataset (real solves) and a tiny FNO trained on it (real torch)."""
 
+import time
 from pathlib import Path
 
 import pytest
@@ -32,3 +33,13 @@ def copy_model(stem, folder: Path) -> Path:
     for src in checkpoint.paths(stem):
         (folder / ("model" + src.suffix)).write_bytes(src.read_bytes())
     return folder / "model"
+
+
+def wait_for(predicate, timeout: float) -> bool:
+    """Poll ``predicate`` every 10 ms for up to ``timeout`` s; its last value."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(0.01)
+    return bool(predicate())

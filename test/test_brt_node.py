@@ -25,7 +25,7 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 
-from conftest import copy_model  # noqa: E402
+from conftest import copy_model, wait_for  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
 from geometry_msgs.msg import PoseWithCovarianceStamped, Twist, TwistStamped  # noqa: E402
 from nav_msgs.msg import OccupancyGrid, Odometry  # noqa: E402
@@ -165,19 +165,9 @@ class Driver(Node):
         return self.out[0][1]
 
 
-def wait_for(predicate, timeout: float) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if predicate():
-            return True
-        time.sleep(0.01)
-    return bool(predicate())
-
-
 @contextlib.contextmanager
-def driver_and_node(model_stem: Path, domain: int, **params) -> Iterator[tuple[Driver, BrtNode]]:
-    """(driver, node) on their own context and domain: the map is published (transient local) before the
-    node exists."""
+def driver_context(domain: int, publish_map: bool = True) -> Iterator[tuple[Driver, SingleThreadedExecutor]]:
+    """A driver spinning on its own context and domain; the map is published (transient local) first."""
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain)
     driver = Driver(context)
@@ -185,20 +175,33 @@ def driver_and_node(model_stem: Path, domain: int, **params) -> Iterator[tuple[D
     executor.add_node(driver)
     spinner = threading.Thread(target=executor.spin, daemon=True)
     spinner.start()
-    driver.map_pub.publish(map_msg(occupancy()))
-    time.sleep(0.2)
-    overrides = [Parameter(k, value=v) for k, v in {"model_path": str(model_stem), **params}.items()]
-    node = BrtNode(context=context, parameter_overrides=overrides)
-    node.start()
-    executor.add_node(node)
+    if publish_map:
+        driver.map_pub.publish(map_msg(occupancy()))
+        time.sleep(0.2)
     try:
-        yield driver, node
+        yield driver, executor
     finally:
         executor.shutdown(timeout_sec=2.0)
-        node.destroy_node()
         driver.destroy_node()
         rclpy.shutdown(context=context)
         spinner.join(timeout=2.0)
+
+
+@contextlib.contextmanager
+def driver_and_node(model_stem: Path, domain: int, publish_map: bool = True, start: bool = True,
+                    **params) -> Iterator[tuple[Driver, BrtNode]]:
+    """(driver, node) on their own context and domain; ``start``: configure and activate the node."""
+    with driver_context(domain, publish_map) as (driver, executor):
+        overrides = [Parameter(k, value=v) for k, v in {"model_path": str(model_stem), **params}.items()]
+        node = BrtNode(context=driver.context, parameter_overrides=overrides)
+        if start:
+            node.start()
+        executor.add_node(node)
+        try:
+            yield driver, node
+        finally:
+            executor.remove_node(node)
+            node.destroy_node()
 
 
 @pytest.fixture(scope="module")
@@ -651,15 +654,7 @@ def test_node_process_runs_without_jax_takes_integer_floats_and_stops_cleanly(mo
     from hjrno_ros.tools.node_process import brt_node_process
 
     domain = DOMAIN + 25
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=domain)
-    driver = Driver(context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(driver)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
-    spinner.start()
-    driver.map_pub.publish(map_msg(occupancy()))
-    try:
+    with driver_context(domain) as (driver, _):
         for run in range(3):
             driver.status = {}
             params = {"inflation_radius": 0, "value_timeout": 0.2} if run == 0 else {"value_timeout": 0.2}
@@ -677,11 +672,6 @@ def test_node_process_runs_without_jax_takes_integer_floats_and_stops_cleanly(mo
                 log = log_tail(200)
             assert proc.returncode == 0, log
             assert "Traceback" not in log and "ERROR" not in log and "inference failed" not in log, log
-    finally:
-        executor.shutdown(timeout_sec=2.0)
-        driver.destroy_node()
-        rclpy.shutdown(context=context)
-        spinner.join(timeout=2.0)
 
 
 def test_docs_parameter_table_is_current():

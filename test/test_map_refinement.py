@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import wait_for
 
 from hjrno_ros.learning.value_function import LearnedValueFunction
 from hjrno_ros.truth import refinement as mr
@@ -205,7 +206,7 @@ def test_the_child_dies_with_its_node_even_after_kill_9(tmp_path, one_window):
     else:
         os.kill(child_pid, signal.SIGKILL)
         pytest.fail("the refinement child outlived its killed node")
-    assert wait_until(lambda: not workdir.exists(), 5.0)
+    assert wait_for(lambda: not workdir.exists(), 5.0)
     stale = Path(tempfile.gettempdir()) / f"hjrno_refine_{parent.pid}_stale"
     stale.mkdir()
     mine = Path(tempfile.mkdtemp(prefix=f"hjrno_refine_{os.getpid()}_"))
@@ -213,12 +214,3 @@ def test_the_child_dies_with_its_node_even_after_kill_9(tmp_path, one_window):
         assert stale in mr.remove_stale_workdirs() and not stale.exists() and mine.exists()
     finally:
         shutil.rmtree(mine, ignore_errors=True)
-
-
-def wait_until(predicate, timeout: float) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if predicate():
-            return True
-        time.sleep(0.05)
-    return bool(predicate())

@@ -3,11 +3,8 @@ command type mismatches found in the ROS graph."""
 
 from __future__ import annotations
 
-import contextlib
 import math
-import threading
 import time
-from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -17,36 +14,14 @@ rclpy = pytest.importorskip("rclpy")
 from geometry_msgs.msg import Twist, TwistStamped  # noqa: E402
 from lifecycle_msgs.msg import State, Transition  # noqa: E402
 from lifecycle_msgs.srv import ChangeState, GetState  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
-from rclpy.parameter import Parameter  # noqa: E402
 from scipy import ndimage  # noqa: E402
-from test_brt_node import DOMAIN, FAR, RES, Driver, map_msg, model_stem, occupancy, settle, wait_for  # noqa: E402, F401
-
-from hjrno_ros.ros.node import BrtNode  # noqa: E402
+from test_brt_node import DOMAIN, FAR, RES, Driver, driver_and_node, map_msg, model_stem, occupancy, settle, wait_for  # noqa: E402, F401
 
 
-@contextlib.contextmanager
-def managed(model: str, domain: int, **params) -> Iterator[tuple[Driver, BrtNode]]:
-    """A driver and a brt_node with ``autostart`` false (a lifecycle manager's job) on their own domain."""
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=domain)
-    driver = Driver(context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(driver)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
-    spinner.start()
-    overrides = [Parameter(k, value=v) for k, v in {"model_path": str(model), "autostart": False, **params}.items()]
-    node = BrtNode(context=context, parameter_overrides=overrides)
-    executor.add_node(node)
-    try:
-        yield driver, node
-    finally:
-        executor.shutdown(timeout_sec=2.0)
-        node.destroy_node()
-        driver.destroy_node()
-        rclpy.shutdown(context=context)
-        spinner.join(timeout=2.0)
+def managed(model: str, domain: int, **params):
+    """A driver and a brt_node with ``autostart`` false (a lifecycle manager's job), not configured."""
+    return driver_and_node(model, domain, publish_map=False, start=False, autostart=False, **params)
 
 
 def transition(driver: Driver, transition_id: int) -> bool:
