@@ -5,7 +5,7 @@
     hjrno merge --out DIR [SHARD_DIR ...]
     hjrno show --dataset FILE
     hjrno train | ensemble | evaluate | calibrate | simulate | demo   (see --help of each)
-    hjrno bench solver|dataset|node|fuzz [--out DIR]
+    hjrno bench solver|dataset|node|fuzz|depot [--out DIR]
 
 Results tables (evaluate, simulate, bench) go to ``out/bench`` unless ``--out`` says otherwise;
 ``make bench`` writes the committed ones under ``benchmarks/results`` explicitly.
@@ -277,6 +277,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    if args.what == "depot":
+        from hjrno_ros.tools import depot_check
+
+        return depot_check.run(Path(args.out), episodes=args.episodes,
+                               seconds=12.0 if args.seconds is None else args.seconds, model=args.model)
     if args.what == "fuzz":
         from hjrno_ros.tools import fuzz_bench
 
@@ -452,13 +457,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("bench", help="run a benchmark and write its results table")
-    p.add_argument("what", choices=["solver", "dataset", "node", "fuzz"])
+    p.add_argument("what", choices=["solver", "dataset", "node", "fuzz", "depot"])
     p.add_argument("--out", default="out/bench", help="results folder (default: out/bench)")
     p.add_argument("--quick", action="store_true", help="smallest case only (smoke run)")
     p.add_argument("--only", default=None, help="dataset bench: comma-separated families; solver bench: problems "
                    "(others keep old rows)")
     p.add_argument("--model", default=None, help="node bench: model stem (default: the bundled model)")
     p.add_argument("--seconds", type=float, default=None, help="fuzz bench: seconds of fuzzing (default: 180)")
+    p.add_argument("--episodes", type=int, default=200,
+                   help="depot bench: episodes on Nav2's depot map (default: 200; --seconds each, default: 12)")
     p.set_defaults(func=cmd_bench)
     return parser
 

@@ -1,7 +1,8 @@
 """colcon builds the package into an ament install tree, and ``lib/hjrno_ros/brt_node`` runs from it.
 
 What ``ros2 run hjrno_ros brt_node`` relies on: the ament index marker, package.xml, the console
-script under ``lib/<package>``, config and models under ``share/<package>``.  The installed
+script under ``lib/<package>``, config and models under ``share/<package>``; ``ros2 launch`` and RViz
+find the launch file and the RViz config under ``share/<package>/launch`` and ``.../rviz``.  The installed
 executable is started the way a sourced workspace would (install site-packages on PYTHONPATH,
 AMENT_PREFIX_PATH), with the installed params file, seen on DDS, and stopped with SIGINT.
 """
@@ -59,7 +60,8 @@ def test_colcon_build_installs_a_runnable_brt_node(tmp_path):
     share = prefix / "share" / "hjrno_ros"
     exe = prefix / "lib" / "hjrno_ros" / "brt_node"
     for path in (exe, prefix / "share" / "ament_index" / "resource_index" / "packages" / "hjrno_ros",
-                 share / "package.xml", share / "config" / "brt_node.yaml"):
+                 share / "package.xml", share / "config" / "brt_node.yaml",
+                 share / "launch" / "brt_node.launch.py", share / "rviz" / "brt_node.rviz"):
         assert path.is_file(), path
     assert os.access(exe, os.X_OK)
     bundled = [f for f in [*ROOT.glob("models/*.json"), *ROOT.glob("models/*.safetensors")] if ".train." not in f.name]
