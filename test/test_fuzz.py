@@ -514,8 +514,14 @@ def parameter_expected(name: str, spec: Any, value: Any, startup: bool) -> bool:
         if isinstance(value, bool) or not isinstance(value, int | float):
             return False
         value = float(value)
+        if name == "v_min" and math.isnan(value):  # docs/node.md: NaN = the card's
+            return True
         if not math.isfinite(value):
             return False
+        if name in ("a_max", "kappa_max", "v_max"):  # the robot's limits: -1 = the card's, else > 0
+            return value == -1.0 or value > 0
+        if name == "tracking_error":
+            return value == -1.0 or value >= 0
         if name == "epsilon":
             return value >= 0 or (startup and value == -1.0)
         if name in ("inflation_radius", "refine_epsilon") and not (value >= 0 or value == -1.0):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -9,9 +10,7 @@ from typing import Any
 import numpy as np
 
 from hjrno_ros.core.model_card import ModelCard, paths
-
-CARD_LIMITS = ("a_max", "kappa_max", "v_max")  # node parameters that must agree with the model card
-LIMIT_TOLERANCE = 1e-6
+from hjrno_ros.ros.robot import ScaledValueFunction, covered_scaling, robot_params
 
 
 def bundled_model_candidates(name: str = "default") -> list[Path]:
@@ -73,19 +72,24 @@ def load_model(cfg: dict[str, Any]) -> tuple[ModelCard, Any, Path]:
     stem = resolve_model(cfg["model_path"])
     card = ModelCard.load(stem)
     if card.kind == "solver":
+        if robot_params(card.dynamics, cfg) != card.dynamics:
+            raise ValueError(f"{stem} is a solver card: write the robot's limits into the card, not the parameters")
         if cfg["refine_horizon"] <= 0:
             raise ValueError(f"{stem} is a solver card (no weights): set refine_horizon > 0 (simulated s of the "
                              "solver over the map)")
         return card, SolverGrid(card), stem
-    limits = card.dynamics.as_dict()
-    for name in CARD_LIMITS:
-        if cfg[name] != -1.0 and abs(cfg[name] - limits[name]) > LIMIT_TOLERANCE:
-            raise ValueError(f"parameter {name}={cfg[name]} differs from the model card's {limits[name]} ({stem}): "
-                             "the model only knows its own limits; use -1 or retrain")
+    robot = robot_params(card.dynamics, cfg)
+    scaling = covered_scaling(card.dynamics, robot)
+    scaled = not (math.isclose(scaling.length, 1.0) and math.isclose(scaling.time, 1.0))
+    if scaled and cfg["refine_horizon"] > 0:
+        raise ValueError("refine_horizon needs the model card's own car (the refinement solves in its units); "
+                         f"the robot is {scaling.length:.4g} times its size")
     from hjrno_ros.learning.value_function import LearnedValueFunction  # torch: seconds, after the cheap checks
 
     try:
         vf = LearnedValueFunction(stem, device=cfg["device"] or None, threads=int(cfg["inference_threads"]))
     except (ValueError, KeyError, TypeError, OSError) as err:
         raise ValueError(f"cannot load model {stem}: {err}") from None
+    if scaled:
+        vf = ScaledValueFunction(vf, scaling, robot)
     return card, vf, stem

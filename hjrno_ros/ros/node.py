@@ -190,17 +190,27 @@ class BrtNode(LifecycleNode):
 
     # ------------------------------------------------------------------ parameters
     def _apply_settings(self, cfg: dict[str, Any]) -> None:
-        self.settings = parameters.filter_settings(self.card, cfg)
+        self.settings = parameters.filter_settings(self.card, cfg, self.scale)
         self.refined_settings, self.refined_from = parameters.refined_filter_settings(self.card, self.settings, cfg)
         if self.epsilon_below_calibrated:
             self.get_logger().warning(
-                f"epsilon {self.settings.epsilon:g} m is below the model card's calibrated {self.card.epsilon:g} m: "
-                "the calibrated false-safe guarantee does not hold")
+                f"epsilon {self.settings.epsilon:g} m is below the model card's calibrated "
+                f"{self.calibrated_epsilon:g} m: the calibrated false-safe guarantee does not hold")
+
+    @property
+    def scale(self) -> float:
+        """The robot's length scale against the card's car (1: the card's own)."""
+        return getattr(getattr(self.vf, "scaling", None), "length", 1.0)
+
+    @property
+    def calibrated_epsilon(self) -> float | None:
+        """The card's calibrated margin at the robot's size, m."""
+        return None if self.card.epsilon is None else self.card.epsilon * self.scale
 
     @property
     def epsilon_below_calibrated(self) -> bool:
         """ε set below the card's calibrated margin: its false-safe guarantee is void."""
-        return self.card.epsilon is not None and self.settings.epsilon < self.card.epsilon
+        return self.calibrated_epsilon is not None and self.settings.epsilon < self.calibrated_epsilon
 
     def _merged(self, params: list[Parameter]) -> tuple[dict[str, Any], str | None]:
         cfg = dict(self._cfg)

@@ -67,9 +67,16 @@ PARAMETERS: dict[str, Param] = {
     "decay_rate": Param(4.0, "1/s: qp mode keeps dV/dt >= -decay_rate * (V - epsilon) under the worst disturbance",
                         1e-3, 100.0),
     "value_clip": Param(1.0, "m: value grid palette, V <= 0 -> 100, V >= value_clip -> 0", 1e-3, 100.0),
-    "a_max": Param(-1.0, "m/s^2: -1 = model card; any other value must equal the card's", read_only=True),
-    "kappa_max": Param(-1.0, "1/m: -1 = model card; any other value must equal the card's", read_only=True),
-    "v_max": Param(-1.0, "m/s: -1 = model card; any other value must equal the card's", read_only=True),
+    "a_max": Param(-1.0, "m/s^2: the robot's acceleration limit; -1 = the model card's car", read_only=True),
+    "kappa_max": Param(-1.0, "1/m: the robot's curvature limit (omega_max / v_max for a differential drive); -1 = the "
+                             "model card's car", read_only=True),
+    "v_max": Param(-1.0, "m/s: the robot's top speed; -1 = the model card's car", read_only=True),
+    "v_min": Param(math.nan, "m/s: the robot's lowest speed (< 0: it reverses); NaN = the card's v_min/v_max times "
+                             "v_max", read_only=True),
+    "tracking_error": Param(-1.0, "delta: the robot's tracking error per unit speed, ||d|| <= delta*|v| + d0; -1 = the "
+                                  "model card's car. The robot must have the card's dimensionless numbers "
+                                  "(docs/node.md, 'The robot')", read_only=True),
+    "footprint_radius": Param(0.0, "m: the robot's radius, added to the inflation", 0.0, 5.0, read_only=True),
     "speed_tolerance": Param(0.05, "m/s: speeds this far outside the model's [v_min, v_max] fail closed", 0.0, 1.0),
     "map_kind": Param("occupancy", "occupancy (map_server: cells >= occupied_threshold are obstacles) | costmap "
                                    "(a Nav2 costmap as OccupancyGrid: cells >= costmap_threshold)", read_only=True),
@@ -125,6 +132,8 @@ def validate(cfg: dict[str, Any], startup: bool = False) -> str | None:
     """A reason why the (normalised) parameter set is unusable, or None."""
     for name, spec in PARAMETERS.items():
         value = cfg[name]
+        if name == "v_min" and math.isnan(value):  # NaN: the card's
+            continue
         if isinstance(value, float) and not math.isfinite(value):
             return f"{name} must be finite, got {value}"
         if spec.lo is not None and not spec.lo <= value <= spec.hi:
@@ -136,6 +145,10 @@ def validate(cfg: dict[str, Any], startup: bool = False) -> str | None:
         return f"map_kind must be one of {list(MAP_KINDS)}, got {cfg['map_kind']!r}"
     if cfg["filter_mode"] not in safety_filter.MODES:
         return f"filter_mode must be one of {list(safety_filter.MODES)}, got {cfg['filter_mode']!r}"
+    for name in ("a_max", "kappa_max", "v_max", "tracking_error"):
+        if not (cfg[name] == -1.0 or (cfg[name] > 0 if name != "tracking_error" else cfg[name] >= 0)):
+            return f"{name} must be -1 (the model card's) or {'>= 0' if name == 'tracking_error' else '> 0'}, " \
+                   f"got {cfg[name]}"
     r = cfg["inflation_radius"]
     if not (r >= 0 or r == -1.0):
         return f"inflation_radius must be >= 0, or -1 (h/sqrt(2) of the model grid), got {r}"
@@ -150,9 +163,10 @@ def obstacle_threshold(cfg: dict[str, Any]) -> int:
     return int(cfg["costmap_threshold"] if cfg["map_kind"] == "costmap" else cfg["occupied_threshold"])
 
 
-def filter_settings(card: ModelCard, cfg: dict[str, Any]) -> safety_filter.FilterSettings:
-    """The filter's settings: ``epsilon``, or for -1 the card's calibrated margin."""
-    eps = cfg["epsilon"] if cfg["epsilon"] >= 0 else card.margin()
+def filter_settings(card: ModelCard, cfg: dict[str, Any], scale: float = 1.0) -> safety_filter.FilterSettings:
+    """The filter's settings: ``epsilon``, or for -1 the card's calibrated margin (a length: times ``scale``, the
+    robot's size against the card's car)."""
+    eps = cfg["epsilon"] if cfg["epsilon"] >= 0 else card.margin() * scale
     return safety_filter.FilterSettings(epsilon=float(eps), mode=cfg["filter_mode"],
                                         blend_width=float(cfg["blend_width"]), dt=float(cfg["control_period"]),
                                         decay_rate=float(cfg["decay_rate"]))

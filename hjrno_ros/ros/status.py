@@ -115,7 +115,7 @@ def build(node: Any, now: float, reason: str, data: dict[str, Any], decision: An
     return {
         "state": name, "reason": why, "value": value, "robot": robot,
         "epsilon": node.settings.epsilon,
-        "epsilon_calibrated": node.card.epsilon,
+        "epsilon_calibrated": node.calibrated_epsilon,
         "epsilon_below_calibrated": node.epsilon_below_calibrated,
         "refine_epsilon": node.refined_settings.epsilon if refinement is not None else None,
         "refine_epsilon_from_s": node.refined_from if refinement is not None else None,

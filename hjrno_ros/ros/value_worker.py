@@ -129,9 +129,11 @@ class ValueWorker:
 
     # ------------------------------------------------------------------ work
     def inflation(self) -> float:
-        """The inflation in metres: ``inflation_radius``, or for -1 half the model grid's x-y cell diagonal."""
-        radius = self.cfg()["inflation_radius"]
-        return float(radius) if radius >= 0 else self.vf.grid.half_cell_diagonal
+        """The inflation in metres: ``footprint_radius`` plus ``inflation_radius``, or for -1 half the model grid's
+        x-y cell diagonal (which makes the grid's V0 conservative)."""
+        cfg = self.cfg()
+        radius = cfg["inflation_radius"]
+        return cfg["footprint_radius"] + (float(radius) if radius >= 0 else self.vf.grid.half_cell_diagonal)
 
     def v0(self, m: MapData, points: np.ndarray) -> np.ndarray:
         """V0 at x-y ``points`` (..., 2): the map's signed distance minus the inflation (float32, m)."""

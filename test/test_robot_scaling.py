@@ -1,0 +1,81 @@
+"""The node takes the robot (issue 42, with today's paper-model card): any robot with the card's dimensionless
+numbers is served by exact similarity; others are refused with the covered range."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+
+from test_brt_node import DOMAIN, FAR, NEAR_WALL, driver_and_node, map_msg, model_stem, occupancy, ros, settle  # noqa: E402, F401  (ros, model_stem: the fixtures)
+
+from hjrno_ros.core.dynamics import CarParams  # noqa: E402
+from hjrno_ros.core.model_card import ModelCard  # noqa: E402
+from hjrno_ros.ros import parameters  # noqa: E402
+from hjrno_ros.ros.robot import ScaledValueFunction, covered_scaling, robot_params  # noqa: E402
+
+S = 0.25  # the small robot's length scale against the card's car: κ_max 4 /m, v_max 0.5 m/s, a_max 1 m/s²
+SMALL = {"kappa_max": 4.0, "v_max": 0.5, "a_max": 1.0}
+
+
+def cfg(**robot) -> dict:
+    values = {name: spec.default for name, spec in parameters.PARAMETERS.items()}
+    return {**values, **robot}
+
+
+def test_robot_parameters_map_onto_the_card_or_are_refused(model_stem):  # noqa: F811
+    card = ModelCard.load(model_stem)
+    assert robot_params(card.dynamics, cfg()) == card.dynamics  # the defaults: the card's own car
+    small = robot_params(card.dynamics, cfg(**SMALL))
+    assert small == CarParams(a_max=1.0, kappa_max=4.0, d0=0.05, v_min=0.0, v_max=0.5)  # keeps d0/v_max
+    scaling = covered_scaling(card.dynamics, small)
+    assert scaling.length == pytest.approx(S) and scaling.speed == pytest.approx(0.5)
+    turtlebot = robot_params(card.dynamics, cfg(kappa_max=2.84 / 0.22, v_max=0.22, a_max=2.5))
+    with pytest.raises(ValueError, match=r"outside what the model card covers \(a_max/\(kappa_max\*v_max\^2\) 1,"):
+        covered_scaling(card.dynamics, turtlebot)
+    assert "a_max" in parameters.validate(cfg(a_max=0.0), startup=True)
+    assert parameters.validate(cfg(v_min=math.nan), startup=True) is None
+
+
+def test_a_scaled_table_is_the_card_table_at_the_robot_size(model_stem):  # noqa: F811
+    """The small robot's table at (s·x, s·y, (s/τ)·v, θ) is s times the card's at (x, y, v, θ), and its gradient
+    follows the chain rule (∂x the same, ∂v times τ, ∂θ times s)."""
+    from hjrno_ros.learning.value_function import LearnedValueFunction
+
+    vf = LearnedValueFunction(model_stem, device="cpu")
+    card = ModelCard.load(model_stem)
+    small = robot_params(card.dynamics, cfg(**SMALL))
+    scaled = ScaledValueFunction(vf, covered_scaling(card.dynamics, small), small)
+    center = (1.0, -2.0)
+    xy = vf.window_points(center)
+    v0 = (np.abs(xy[..., 0] - 4.0) - 0.3).astype(np.float32)  # a wall 3 m ahead of the centre
+    big_table = vf.local_table(v0, center, 0.6, 0.2)
+    small_table = scaled.local_table(S * v0, (S * center[0], S * center[1]), 0.6 * 0.5, 0.2)
+    assert np.allclose(scaled.window_points((S * center[0], S * center[1])), S * xy)
+    state = np.array([center[0] + 1.3, center[1] - 0.4, 0.6, 0.2])
+    small_state = state * [S, S, 0.5, 1.0]
+    v_big, g_big = big_table.value_and_gradient(state)
+    v_small, g_small = small_table.value_and_gradient(small_state)
+    assert v_small[0] == pytest.approx(S * v_big[0], rel=1e-5, abs=1e-6)
+    tau = S / 0.5
+    assert np.allclose(g_small[0], g_big[0] * [1.0, 1.0, tau, S], rtol=1e-4, atol=1e-6)
+
+
+def test_the_node_filters_a_smaller_robot_on_a_smaller_map(model_stem, ros):  # noqa: F811
+    """Over DDS: the same map at a quarter of the size and the small robot give a quarter of the card robot's V
+    at the corresponding states (the module's node serves the card's robot)."""
+    driver, _ = ros
+    reference = {name: settle(driver, *pose)["value"] for name, pose in
+                 (("far", (*FAR, 0.5, 0.0)), ("near", (*NEAR_WALL, 1.0, 0.3)))}
+    small_map = map_msg(occupancy(), resolution=0.1 * S)
+    small_map.info.origin.position.x, small_map.info.origin.position.y = -10.0 * S, -10.0 * S
+    with driver_and_node(model_stem, DOMAIN + 46, publish_map=False, **SMALL) as (small, node):
+        small.map_pub.publish(small_map)
+        margin = ModelCard.load(model_stem).margin()
+        assert node.vf.params.kappa_max == 4.0 and node.settings.epsilon == pytest.approx(S * margin)
+        for name, (x, y, v, theta) in (("far", (*FAR, 0.5, 0.0)), ("near", (*NEAR_WALL, 1.0, 0.3))):
+            value = settle(small, S * x, S * y, 0.5 * v, theta, timeout=20.0)["value"]
+            assert value == pytest.approx(S * reference[name], rel=2e-3, abs=2e-3), (name, value, reference)
