@@ -244,7 +244,15 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    """Closed-loop comparison of safety filters; writes closed_loop.{md,csv,json,png}."""
+    """Closed-loop comparison of safety filters; writes closed_loop.{md,csv,json,png} (or, with --scenes, the
+    product robot's scenes: scenes.md)."""
+    if args.scenes:
+        from hjrno_ros.core.dynamics import CarParams
+        from hjrno_ros.studies import product_scenes
+
+        text = product_scenes.run_all(CarParams.product(v_min=-0.5), args.out)
+        print(text)
+        return 0 if "| none |" in text and text.count("| none |") == len(product_scenes.SCENES) * 3 else 1
     import torch
 
     from hjrno_ros.studies import filter_study, plotting
@@ -441,6 +449,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "(default), or read l with r taken off their output (exact for the true operator)")
     p.add_argument("--refine", type=float, default=0.0, help="also filter with each model's table refined by this "
                    "many simulated s of the solver warm-started from it (brt_node's refine_horizon), s")
+    p.add_argument("--scenes", choices=["product"], default=None,
+                   help="instead: the product robot's scenes (rest by a wall, dead end, reversing, spin, inside a "
+                   "wall) in every filter mode against the solver's table; writes scenes.md")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     p.add_argument("--out", default="out/bench", help="results folder (default: out/bench)")

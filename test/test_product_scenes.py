@@ -101,3 +101,11 @@ def test_scenes_offline_with_the_same_table_kind():
         for scene in product_scenes.SCENES:
             states, outputs = product_scenes.simulate(ROBOT, table, settings, scene)
             assert not product_scenes.judge(scene, states, outputs), (mode, scene.name)
+
+
+def test_hjrno_simulate_runs_the_scenes(tmp_path):
+    from hjrno_ros import cli
+
+    assert cli.main(["simulate", "--scenes", "product", "--out", str(tmp_path)]) == 0
+    table = (tmp_path / "scenes.md").read_text()
+    assert table.count("| none |") == 3 * len(product_scenes.SCENES)
