@@ -473,7 +473,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="smallest case only (smoke run)")
     p.add_argument("--only", default=None, help="dataset bench: comma-separated families; solver bench: problems "
                    "(others keep old rows)")
-    p.add_argument("--model", default=None, help="node bench: model stem (default: the bundled model)")
+    p.add_argument("--model", default=None, help="node and depot benches: model stem (default: the bundled model)")
     p.add_argument("--seconds", type=float, default=None, help="fuzz bench: seconds of fuzzing (default: 180)")
     p.add_argument("--episodes", type=int, default=200,
                    help="depot bench: episodes on Nav2's depot map (default: 200; --seconds each, default: 12)")

@@ -2,7 +2,7 @@
 
 :class:`EpisodeRobot` is the demo's :class:`~hjrno_ros.ros.sim_robot.SimRobot` (latched map, odometry in
 the map frame at ``odom_rate``, TwistStamped nominal commands at ``cmd_rate``, the dynamic Dubins car
-integrated in real time with the *filtered* command and a random disturbance ‖d‖ ≤ d_max, a filtered
+integrated in real time with the *filtered* command and a random disturbance ‖d‖ ≤ δ·|v| + d₀, a filtered
 command older than ``cmd_timeout`` counting as zero) with three changes: the world is an occupancy
 raster (a point robot collides when it enters an obstacle cell, and leaves the map when it crosses the
 map's edge), the careless driver is chosen per episode, and the robot is reset between episodes, so one
@@ -29,7 +29,7 @@ from nav_msgs.msg import OccupancyGrid
 from rclpy.executors import SingleThreadedExecutor
 
 from hjrno_ros.core import safety_filter
-from hjrno_ros.core.dynamics import CarParams
+from hjrno_ros.core.dynamics import CarParams, car_disturbance_bound
 from hjrno_ros.ros.messages import odometry_message
 from hjrno_ros.ros.sim_robot import Log, SimRobot
 from hjrno_ros.studies import closed_loop
@@ -90,7 +90,7 @@ class EpisodeRobot(SimRobot):
         if self.running and self.log.outcome is None:
             twist = self._filtered if time.monotonic() - self._filtered_at <= self.cmd_timeout else np.zeros(2)
             u = safety_filter.twist_to_control(self.params, self.x, twist[None], self.control_period)
-            d = ball(self.rng, (1,), self.params.d_max)
+            d = car_disturbance_bound(self.params, self.x[:, 2])[:, None] * ball(self.rng, (1,), 1.0)
             self.x = closed_loop.rk4(self.params, self.x, u, d, self.dt)
             t = self.now()
             self.log.states.append((t, *self.x[0], self._intervened))

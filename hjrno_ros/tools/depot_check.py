@@ -218,10 +218,11 @@ def run(out: Path, episodes: int = 200, seconds: float = 12.0, seed: int = 0, mo
         raise ValueError(f"{map_path}: map not found (the depot map lives in ../shared/maps beside the checkout)")
     world = DepotWorld(load_map(map_path))
     plan = draw_episodes(world, episodes, seed)
-    stem = resolve_model(model or "")
-    card = ModelCard.load(stem)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    stem = resolve_model(model or "")
+    card = ModelCard.load(stem)
+    node_params = {"enable_stamped_cmd_vel": True, "model_path": str(stem)}
     domain = free_domain()
     robot = {"obstacle": world.obstacle, "occupancy": world.map.occupancy, "resolution": world.resolution,
              "origin": tuple(world.origin), "params": card.dynamics, "seed": seed}
@@ -238,7 +239,7 @@ def run(out: Path, episodes: int = 200, seconds: float = 12.0, seed: int = 0, mo
                   f"{r['min_clearance_m']:6.3f} m, {r['distance_m']:5.2f} m, {r['interventions']}/{r['commands']} "
                   f"interventions", flush=True)
 
-    with brt_node_process(domain, {"enable_stamped_cmd_vel": True, "model_path": str(stem)}) as (proc, log_tail):
+    with brt_node_process(domain, node_params) as (proc, log_tail):
         def check() -> None:
             if proc.poll() is not None:
                 raise RuntimeError(f"brt_node exited with code {proc.returncode}: {log_tail()}")
@@ -258,7 +259,8 @@ def run(out: Path, episodes: int = 200, seconds: float = 12.0, seed: int = 0, mo
             f"{time.strftime('%Y-%m-%d')}, {wall / 60:.1f} min: map `{shown}` ({m.occupancy.shape[0]} x "
             f"{m.occupancy.shape[1]} cells at {m.resolution:g} m, loaded as map_server does), brt_node in its own "
             f"process ({model_shown}, epsilon {status.get('epsilon', '?')} m, {status.get('filter_mode', '?')}), "
-            f"a simulated point robot (the model's car, random disturbance <= {card.dynamics.d_max:g} m/s) over Fast "
+            f"a simulated point robot (the model's car, random disturbance <= {card.dynamics.tracking_error:g}|v| + "
+            f"{card.dynamics.d0:g} m/s) over Fast "
             f"DDS in real time, {seconds:g} s per episode, starts at rest >= {CLEARANCE:g} m from obstacles, seed "
             f"{seed}. Drivers in turn: straight (v_max, headed for an obstacle cell within {AIM_RANGE:g} m), edge "
             "(v_max toward the nearest map edge), "
