@@ -71,9 +71,13 @@ def test_a_solver_card_waits_for_a_settled_table(solver_card):
     card = ModelCard.load(solver_card)
     assert card.kind == "solver" and card.dynamics == ROBOT
     from hjrno_ros.ros.model_files import load_model
+    from hjrno_ros.ros.parameters import PARAMETERS
 
+    cfg = {name: spec.default for name, spec in PARAMETERS.items()}
     with pytest.raises(ValueError, match="refine_horizon > 0"):
-        load_model({"model_path": str(solver_card), "refine_horizon": 0.0})
+        load_model({**cfg, "model_path": str(solver_card), "refine_horizon": 0.0})
+    with pytest.raises(ValueError, match="write the robot's limits into the card"):
+        load_model({**cfg, "model_path": str(solver_card), "refine_horizon": 10.0, "v_max": 2.0})
 
 
 @pytest.mark.parametrize("scene", product_scenes.SCENES, ids=[s.name for s in product_scenes.SCENES])
