@@ -9,8 +9,8 @@ The node coordinates small components (docs/node.md has topics, QoS, status and 
 
 Each input answers "data, or the reason it is unusable now"; the check is a loop over them, and any
 reason publishes a zero command instead of the filtered one.  The command callback never waits for
-inference.  :meth:`BrtNode.start` starts the worker (``main`` calls it before spinning) and
-:meth:`BrtNode.stop` joins it before the ROS context goes.
+inference.  The node is managed: the worker starts on activate and is joined on deactivate, and before the
+ROS context goes (:mod:`hjrno_ros.ros.main`).
 """
 
 from __future__ import annotations
