@@ -28,13 +28,11 @@ from geometry_msgs.msg import TwistStamped
 from nav_msgs.msg import OccupancyGrid
 from rclpy.executors import SingleThreadedExecutor
 
-from hjrno_ros.core import safety_filter
-from hjrno_ros.core.dynamics import CarParams, car_disturbance_bound
+from hjrno_ros.core.dynamics import CarParams
 from hjrno_ros.ros.messages import odometry_message
 from hjrno_ros.ros.sim_robot import Log, SimRobot
 from hjrno_ros.studies import closed_loop
 from hjrno_ros.studies.closed_loop import EpisodeSettings
-from hjrno_ros.studies.simulation import ball
 
 DRIVERS = ("straight", "edge", "goal", "goal_off_map")
 STRAIGHT_DRIVERS = ("straight", "edge")
@@ -89,9 +87,7 @@ class EpisodeRobot(SimRobot):
         """Physics at odom_rate: integrate with the latest filtered command; stop at a collision or exit."""
         if self.running and self.log.outcome is None:
             twist = self._filtered if time.monotonic() - self._filtered_at <= self.cmd_timeout else np.zeros(2)
-            u = safety_filter.twist_to_control(self.params, self.x, twist[None], self.control_period)
-            d = car_disturbance_bound(self.params, self.x[:, 2])[:, None] * ball(self.rng, (1,), 1.0)
-            self.x = closed_loop.rk4(self.params, self.x, u, d, self.dt)
+            self.x = closed_loop.base_step(self.params, self.x, twist[None], self.control_period, self.dt, self.rng)
             t = self.now()
             self.log.states.append((t, *self.x[0], self._intervened))
             self.log.outcome = self.event(self.x[0, :2])

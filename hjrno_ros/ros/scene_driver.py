@@ -12,12 +12,10 @@ from geometry_msgs.msg import Twist
 from nav_msgs.msg import OccupancyGrid, Odometry
 from rclpy.node import Node
 
-from hjrno_ros.core import safety_filter
-from hjrno_ros.core.dynamics import CarParams, car_disturbance_bound
+from hjrno_ros.core.dynamics import CarParams
 from hjrno_ros.ros.messages import LATCHED, occupancy_message, odometry_message
 from hjrno_ros.studies import product_scenes
-from hjrno_ros.studies.closed_loop import rk4
-from hjrno_ros.studies.simulation import ball
+from hjrno_ros.studies.closed_loop import base_step
 
 DT = 0.02  # s: physics and odometry
 CMD_PERIOD = 0.05  # s: nominal commands; also the base's dt from speed command to acceleration
@@ -60,9 +58,7 @@ class SceneBase(Node):
             if self.nominal is not None:
                 fresh = time.monotonic() - self.filtered_at <= STALE
                 twist = self.filtered if fresh else np.zeros((1, 2))
-                u = safety_filter.twist_to_control(self.params, self.x, twist, CMD_PERIOD)
-                d = car_disturbance_bound(self.params, self.x[:, 2])[:, None] * ball(self.rng, (1,), 1.0)
-                self.x = rk4(self.params, self.x, u, d, DT)
+                self.x = base_step(self.params, self.x, twist, CMD_PERIOD, DT, self.rng)
                 self.states.append(self.x[0].copy())
             x, y, v, theta = self.x[0]
         self.odom_pub.publish(odometry_message(x, y, theta, v, "map", self.get_clock().now().to_msg()))

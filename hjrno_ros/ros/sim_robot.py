@@ -24,13 +24,11 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from std_msgs.msg import String
 
-from hjrno_ros.core import safety_filter
-from hjrno_ros.core.dynamics import CarParams, car_disturbance_bound
+from hjrno_ros.core.dynamics import CarParams
 from hjrno_ros.core.geometry import union_sdf
 from hjrno_ros.ros.messages import LATCHED, occupancy_array, occupancy_message, odometry_message
 from hjrno_ros.studies import closed_loop
 from hjrno_ros.studies.closed_loop import EpisodeSettings
-from hjrno_ros.studies.simulation import ball
 
 
 @dataclasses.dataclass
@@ -85,9 +83,7 @@ class SimRobot(Node):
         """Physics at odom_rate: integrate with the latest filtered command, publish odometry."""
         if self.running and self.log.collided_at is None:
             twist = self._filtered if time.monotonic() - self._filtered_at <= self.cmd_timeout else np.zeros(2)
-            u = safety_filter.twist_to_control(self.params, self.x, twist[None], self.control_period)
-            d = car_disturbance_bound(self.params, self.x[:, 2])[:, None] * ball(self.rng, (1,), 1.0)
-            self.x = closed_loop.rk4(self.params, self.x, u, d, self.dt)
+            self.x = closed_loop.base_step(self.params, self.x, twist[None], self.control_period, self.dt, self.rng)
             t = self.now()
             self.log.states.append((t, *self.x[0], self._intervened))
             if union_sdf(self.shapes, self.x[:, :2])[0] <= 0:

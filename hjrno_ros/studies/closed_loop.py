@@ -129,6 +129,16 @@ def rk4(params: CarParams, x: np.ndarray, u: np.ndarray, d: np.ndarray, dt: floa
     return x
 
 
+def base_step(params: CarParams, x: np.ndarray, twist: np.ndarray, control_period: float, dt: float,
+              rng: np.random.Generator) -> np.ndarray:
+    """A simulated base over ``dt``: it turns ``twist`` (n, 2) into controls as a base does
+    (:func:`twist_to_control` over ``control_period``) and moves under a random disturbance uniform in the
+    car's disk ‖d‖ ≤ δ·|v| + d₀ (the demo's, the depot check's and the product scenes' robot)."""
+    u = twist_to_control(params, x, twist, control_period)
+    d = car_disturbance_bound(params, x[:, 2])[:, None] * ball(rng, (len(x),), 1.0)
+    return rk4(params, x, u, d, dt)
+
+
 def run_episodes(world: World, episodes: Episodes, filt: Filter | None, settings: EpisodeSettings,
                  trace: bool = False) -> dict:
     """Run all episodes of one world under one filter; per-episode metrics as arrays of length n

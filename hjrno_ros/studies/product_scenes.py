@@ -14,10 +14,9 @@ import dataclasses
 import numpy as np
 
 from hjrno_ros.core import geometry, safety_filter
-from hjrno_ros.core.dynamics import CarParams, car_disturbance_bound
+from hjrno_ros.core.dynamics import CarParams
 from hjrno_ros.core.value_table import ValueTable
-from hjrno_ros.studies.closed_loop import rk4
-from hjrno_ros.studies.simulation import ball
+from hjrno_ros.studies.closed_loop import base_step
 
 RESOLUTION = 0.05  # m
 ORIGIN = (0.0, 0.0)
@@ -103,9 +102,7 @@ def simulate(params: CarParams, table: ValueTable, settings: safety_filter.Filte
             d = safety_filter.filter_command(params, settings, s, float(values[0]), grads[0], *scene.nominal)
             twist = np.array([[d.linear, d.angular]])
             outputs.append(twist[0].copy())
-        u = safety_filter.twist_to_control(params, x, twist, settings.dt)
-        noise = car_disturbance_bound(params, x[:, 2])[:, None] * ball(rng, (1,), 1.0)
-        x = rk4(params, x, u, noise, dt)
+        x = base_step(params, x, twist, settings.dt, dt, rng)
         states.append(x[0].copy())
     return np.array(states), np.array(outputs)
 
