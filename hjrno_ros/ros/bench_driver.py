@@ -3,21 +3,19 @@
 from __future__ import annotations
 
 import json
-import threading
 import time
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import TwistStamped
 from nav_msgs.msg import OccupancyGrid, Odometry
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from std_msgs.msg import String
 from std_srvs.srv import SetBool
 
 from hjrno_ros.ros.messages import LATCHED, occupancy_message, odometry_message
+from hjrno_ros.ros.spin import spin_in_background
 
 NODE_NAME = "brt_node"
 
@@ -100,14 +98,8 @@ def bench_drive(domain_id: int, maps: list[np.ndarray], resolution: float, origi
     process and DDS path without the filter, a baseline for the command latency.  Returns raw
     latencies (s), counts and the node's last status.
     """
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=domain_id)
-    driver = BenchDriver(context, pose, speed)
+    driver, stop = spin_in_background(domain_id, lambda c: BenchDriver(c, pose, speed))
     enable = driver.create_client(SetBool, f"/{NODE_NAME}/enable")
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(driver)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
-    spinner.start()
     try:
         driver.publish_map(maps[0], resolution, origin, 1)
         end = time.monotonic() + ready_timeout
@@ -152,7 +144,4 @@ def bench_drive(domain_id: int, maps: list[np.ndarray], resolution: float, origi
             result["bypass_sent"] = len(driver.cmd_latency) + len(driver.sent)
         return result
     finally:
-        executor.shutdown(timeout_sec=2.0)
-        driver.destroy_node()
-        rclpy.shutdown(context=context)
-        spinner.join(timeout=2.0)
+        stop()

@@ -29,10 +29,8 @@ from nav_msgs.msg import OccupancyGrid
 from rclpy.executors import SingleThreadedExecutor
 
 from hjrno_ros.core.dynamics import CarParams
-from hjrno_ros.ros.messages import odometry_message
 from hjrno_ros.ros.sim_robot import Log, SimRobot
 from hjrno_ros.studies import closed_loop
-from hjrno_ros.studies.closed_loop import EpisodeSettings
 
 DRIVERS = ("straight", "edge", "goal", "goal_off_map")
 STRAIGHT_DRIVERS = ("straight", "edge")
@@ -83,22 +81,14 @@ class EpisodeRobot(SimRobot):
             return "exit"
         return "collision" if self.obstacle[ij[0], ij[1]] else None
 
-    def _step(self) -> None:
-        """Physics at odom_rate: integrate with the latest filtered command; stop at a collision or exit."""
-        if self.running and self.log.outcome is None:
-            twist = self._filtered if time.monotonic() - self._filtered_at <= self.cmd_timeout else np.zeros(2)
-            self.x = closed_loop.base_step(self.params, self.x, twist[None], self.control_period, self.dt, self.rng)
-            t = self.now()
-            self.log.states.append((t, *self.x[0], self._intervened))
-            self.log.outcome = self.event(self.x[0, :2])
-            if self.log.outcome is not None:
-                self.log.collided_at = t
-            elif (self.driver not in STRAIGHT_DRIVERS
-                  and np.linalg.norm(self.x[0, :2] - self.goals[self.goal_index]) <= EpisodeSettings.goal_tolerance):
-                self.goal_index = (self.goal_index + 1) % len(self.goals)
-                self.log.goals.append((t, *self.goals[self.goal_index]))
-        x, y, v, theta = self.x[0]
-        self.odom_pub.publish(odometry_message(x, y, theta, v, "map", self.get_clock().now().to_msg()))
+    def _ended(self) -> bool:
+        return self.log.outcome is not None
+
+    def _end(self, outcome: str, t: float) -> None:
+        self.log.outcome, self.log.collided_at = outcome, t
+
+    def _seeks_goal(self) -> bool:
+        return self.driver not in STRAIGHT_DRIVERS
 
     def _command(self) -> None:
         """The episode's careless nominal command."""

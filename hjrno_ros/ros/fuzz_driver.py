@@ -26,13 +26,11 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import PoseWithCovarianceStamped, Twist
 from nav_msgs.msg import OccupancyGrid, Odometry
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from std_msgs.msg import String
 
@@ -41,6 +39,7 @@ from hjrno_ros.core.model_card import ModelCard
 from hjrno_ros.ros.messages import LATCHED, finite, planar_yaw
 from hjrno_ros.ros.model_files import resolve_model
 from hjrno_ros.ros.parameters import PARAMETERS
+from hjrno_ros.ros.spin import spin_in_background
 
 NODE_NAME = "brt_node"
 POSE_TOPIC = "amcl_pose"  # the node under test runs with pose_topic:=amcl_pose, so poses are fuzzed too
@@ -433,13 +432,7 @@ def fuzz_drive(domain_id: int, seconds: float, seed: int = 0, model: str | None 
     Waits until it filters (a valid map, pose and odometry), fuzzes, then sends sane parameters and valid inputs
     and waits (≤ 10 s) until it filters again.  ``on_tick(elapsed)`` is called about once a second while fuzzing.
     Returns counts by class, outputs, violations, status gaps, parameter answers and the node's last status."""
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=domain_id)
-    driver = FuzzDriver(context, seed, model_limits(model))
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(driver)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
-    spinner.start()
+    driver, stop = spin_in_background(domain_id, lambda c: FuzzDriver(c, seed, model_limits(model)))
     filtering = ("ok", "intervening", "unsafe_idle")
 
     def settle(timeout: float) -> bool:
@@ -494,8 +487,5 @@ def fuzz_drive(domain_id: int, seconds: float, seed: int = 0, model: str | None 
                 "status": dict(driver.status)})
         return result
     finally:
-        executor.shutdown(timeout_sec=2.0)
-        driver.destroy_node()
-        rclpy.shutdown(context=context)
-        spinner.join(timeout=2.0)
+        stop()
 

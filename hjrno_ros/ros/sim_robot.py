@@ -81,18 +81,33 @@ class SimRobot(Node):
 
     def _step(self) -> None:
         """Physics at odom_rate: integrate with the latest filtered command, publish odometry."""
-        if self.running and self.log.collided_at is None:
+        if self.running and not self._ended():
             twist = self._filtered if time.monotonic() - self._filtered_at <= self.cmd_timeout else np.zeros(2)
             self.x = closed_loop.base_step(self.params, self.x, twist[None], self.control_period, self.dt, self.rng)
             t = self.now()
             self.log.states.append((t, *self.x[0], self._intervened))
-            if union_sdf(self.shapes, self.x[:, :2])[0] <= 0:
-                self.log.collided_at = t
-            elif np.linalg.norm(self.x[0, :2] - self.goals[self.goal_index]) <= EpisodeSettings.goal_tolerance:
+            outcome = self.event(self.x[0, :2])
+            if outcome is not None:
+                self._end(outcome, t)
+            elif (self._seeks_goal()
+                  and np.linalg.norm(self.x[0, :2] - self.goals[self.goal_index]) <= EpisodeSettings.goal_tolerance):
                 self.goal_index = (self.goal_index + 1) % len(self.goals)
                 self.log.goals.append((t, *self.goals[self.goal_index]))
         x, y, v, theta = self.x[0]
         self.odom_pub.publish(odometry_message(x, y, theta, v, "map", self.get_clock().now().to_msg()))
+
+    def event(self, xy: np.ndarray) -> str | None:
+        """"collision" inside an obstacle, else None."""
+        return "collision" if union_sdf(self.shapes, np.asarray(xy, float)[None])[0] <= 0 else None
+
+    def _ended(self) -> bool:
+        return self.log.collided_at is not None
+
+    def _end(self, outcome: str, t: float) -> None:
+        self.log.collided_at = t
+
+    def _seeks_goal(self) -> bool:
+        return True
 
     def _command(self) -> None:
         """The careless nominal command: straight for the current goal."""
