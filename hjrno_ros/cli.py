@@ -118,7 +118,13 @@ def cmd_generate(args: argparse.Namespace) -> int:
     if changes:
         config = dataclasses.replace(config, **changes)
     out = Path(args.out) if args.out else Path("data") / config.name
-    summary = dataset.generate(config, out, shard=args.shard, workers=args.workers, progress=not args.quiet)
+    if args.scheduler:
+        from hjrno_ros.datasets.cluster import dask_executor
+
+        with dask_executor(args.scheduler, args.workers) as executor:
+            summary = dataset.generate(config, out, shard=args.shard, progress=not args.quiet, executor=executor)
+    else:
+        summary = dataset.generate(config, out, shard=args.shard, workers=args.workers, progress=not args.quiet)
     outputs = ", ".join(summary["outputs"]) or "none yet (other shards pending; then `hjrno merge`)"
     print(f"{config.name}: solved {summary['solved']} sample(s) in {summary['wall_s']:.1f} s, "
           f"{summary['not_converged']} not converged (flagged); outputs: {outputs} "
@@ -262,11 +268,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     models = _models(args.model)
     folders = _data_folders(args.data, next(iter(models.values())), args.allow_unconverged)
     study = filter_study.run_study(folders, models, args.episodes, args.seed, args.truth_epsilon, args.part,
-                                   EpisodeSettings(duration=args.duration),
+                                   EpisodeSettings(duration=args.duration, careless=args.careless),
                                    filters=args.filters.split(",") if args.filters else None,
                                    progress=(lambda m: None) if args.quiet else print,
                                    unconverged=args.allow_unconverged, inflation_at=args.inflation_at,
-                                   refine=args.refine,
+                                   refine=args.refine, robot=args.robot,
                                    **({"decay_rate": args.decay_rate} if args.decay_rate else {}))
     out = Path(args.out)
     command = "hjrno " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("hjrno") else "hjrno simulate ..."
@@ -336,6 +342,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "(target l - inflation; car families; h/sqrt(2) of the grid makes it conservative)")
     p.add_argument("--shard", default=None, help="K/N: only samples with index mod N == K")
     p.add_argument("--workers", type=int, default=1, help="solver processes (default 1)")
+    p.add_argument("--scheduler", default=None, help="solve on Dask distributed: a scheduler address "
+                   "(tcp://host:8786) or 'local' (a local cluster of --workers processes); docs/training.md")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_generate)
 
@@ -449,6 +457,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "(default), or read l with r taken off their output (exact for the true operator)")
     p.add_argument("--refine", type=float, default=0.0, help="also filter with each model's table refined by this "
                    "many simulated s of the solver warm-started from it (brt_node's refine_horizon), s")
+    p.add_argument("--robot", default=None, choices=["turtlebot3"], help="drive this robot instead of the worlds' "
+                   "car: worlds, margins and episodes at its size, a_max from each world's a_max/(kappa v^2)")
+    p.add_argument("--careless", action="store_true", help="also reversing (if the robot can) and spin-in-place "
+                   "drivers, 1 episode in 10 each")
     p.add_argument("--scenes", choices=["product"], default=None,
                    help="instead: the product robot's scenes (rest by a wall, dead end, reversing, spin, inside a "
                    "wall) in every filter mode against the solver's table; writes scenes.md")

@@ -3,6 +3,7 @@ numbers is served by exact similarity; others are refused with the covered range
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -14,6 +15,7 @@ from test_brt_node import DOMAIN, FAR, NEAR_WALL, driver_and_node, map_msg, mode
 
 from hjrno_ros.core.dynamics import CarParams  # noqa: E402
 from hjrno_ros.core.model_card import ModelCard  # noqa: E402
+from hjrno_ros.core.similarity import Dimensionless  # noqa: E402
 from hjrno_ros.ros import parameters  # noqa: E402
 from hjrno_ros.ros.robot import ScaledValueFunction, covered_scaling, robot_params  # noqa: E402
 
@@ -79,3 +81,36 @@ def test_the_node_filters_a_smaller_robot_on_a_smaller_map(model_stem, ros):  # 
         for name, (x, y, v, theta) in (("far", (*FAR, 0.5, 0.0)), ("near", (*NEAR_WALL, 1.0, 0.3))):
             value = settle(small, S * x, S * y, 0.5 * v, theta, timeout=20.0)["value"]
             assert value == pytest.approx(S * reference[name], rel=2e-3, abs=2e-3), (name, value, reference)
+
+
+def test_a_conditioned_product_card_covers_a_range_of_robots():
+    from hjrno_ros.core.similarity import Coverage
+
+    card = CarParams.product()
+    coverage = Coverage.of(card, {"log_a_max": [math.log(0.5), math.log(4.0)]})
+    turtlebot = CarParams(a_max=2.0, kappa_max=2.84 / 0.22, v_min=-0.22, v_max=0.22, tracking_error=0.05, d0=0.0)
+    jackal = CarParams(a_max=3.0, kappa_max=2.0, v_min=-1.0, v_max=1.0, tracking_error=0.1, d0=0.0)
+    assert coverage.covers(Dimensionless.of(turtlebot)) and coverage.covers(Dimensionless.of(jackal))
+    scaling = covered_scaling(card, turtlebot, {"log_a_max": [math.log(0.5), math.log(4.0)]})
+    assert scaling.length == pytest.approx(0.22 / 2.84) and scaling.speed == pytest.approx(0.22)
+    for bad in (dict(a_max=10.0), dict(tracking_error=0.2), dict(v_min=-2.0)):
+        with pytest.raises(ValueError, match=r"covers \(a_max/\(kappa_max\*v_max\^2\) 0\.5\.\.4, v_min/v_max -1\.\.0, "
+                                             r"tracking_error 0\.\.0\.1, d0/v_max 0\)"):
+            covered_scaling(card, dataclasses.replace(jackal, **bad), {"log_a_max": [math.log(0.5), math.log(4.0)]})
+    # without the conditioning channel only the card's own a_max/(κ v²) is covered
+    with pytest.raises(ValueError, match=r"a_max/\(kappa_max\*v_max\^2\) 1,"):
+        covered_scaling(card, jackal)
+
+
+def test_a_forward_card_answers_reversing_states_by_symmetry(model_stem):  # noqa: F811
+    """V(x, y, −v, θ) = V(x, y, v, θ + π): the table at a reversing state is the forward table turned round."""
+    from hjrno_ros.learning.value_function import LearnedValueFunction
+
+    vf = LearnedValueFunction(model_stem, device="cpu")
+    xy = vf.window_points((0.0, 0.0))
+    v0 = (np.abs(xy[..., 0] - 2.0) - 0.3).astype(np.float32)
+    back = vf.local_table(v0, (0.0, 0.0), -0.6, 0.3)
+    ahead = vf.local_table(v0, (0.0, 0.0), 0.6, 0.3 + math.pi)
+    assert back.grid.lo[2] < 0 and back.grid.hi[2] < 0
+    assert np.allclose(back.grid.lo[2:], (-ahead.grid.hi[2], 0.3 - vf.grid.spacings[3] / 2))
+    assert np.array_equal(back.values, ahead.values[:, :, ::-1])

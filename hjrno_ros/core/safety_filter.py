@@ -87,6 +87,25 @@ def clip_to_limits(params: CarParams, states: np.ndarray, twist: np.ndarray, dt:
     return np.stack([linear, np.clip(twist[..., 1], -bound, bound)], -1)
 
 
+def sampling_margin(params: CarParams, dt: float) -> float:
+    """m: how far V can fall while one command holds for ``dt`` (the filter decides once per period): the robot
+    and the disturbance move it at most (1 + δ)·|v| + d₀ at the top speed, and V is 1-Lipschitz in (x, y).  A
+    small fast-turning robot needs it: a TurtleBot3 covers 1.1 cm per 50 ms, more than its scaled ε (0.8 cm)."""
+    speed = max(abs(params.v_min), abs(params.v_max))
+    return float(((1 + params.tracking_error) * speed + params.d0) * dt)
+
+
+def within_nominal_speed(params: CarParams, twist: np.ndarray, nominal: np.ndarray) -> np.ndarray:
+    """For a robot that rests safely (d₀ = 0: nothing moves it at v = 0), the linear command stays between 0 and
+    the nominal's: the filter brakes or turns, never adds speed or reverses against the nominal.  Its model's V
+    never gains from speed (docs/design.md, "Robot models"), so this only removes what a learned V's noise adds.
+    The angular command is unchanged (its curvature is ω / v at the present speed)."""
+    if params.d0 > 0:
+        return twist
+    linear = np.clip(twist[..., 0], np.minimum(nominal[..., 0], 0.0), np.maximum(nominal[..., 0], 0.0))
+    return np.stack([linear, twist[..., 1]], -1)
+
+
 def safe_twist(params: CarParams, state: np.ndarray, grad: np.ndarray, dt: float) -> np.ndarray:
     """The optimal safe control at ``state`` (``(4,)`` or ``(n, 4)``) as (linear, angular) commands."""
     state = np.asarray(state, float)
@@ -175,7 +194,7 @@ def filter_batch(params: CarParams, settings: FilterSettings, states: np.ndarray
         w = nominal_weight(settings, values)
         out = w[:, None] * nominal + (1 - w[:, None]) * safe_twist(params, states, grads, settings.dt)
         changed = w < 1.0
-    out = clip_to_limits(params, states, out, settings.dt)
+    out = clip_to_limits(params, states, within_nominal_speed(params, out, nominal), settings.dt)
     bad |= ~np.isfinite(out).all(-1)
     out[bad] = 0.0
     return out, changed | bad

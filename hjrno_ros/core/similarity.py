@@ -51,6 +51,49 @@ class Dimensionless:
                    for a, b in zip(dataclasses.astuple(self), dataclasses.astuple(other), strict=True))
 
 
+COVER_RTOL = 1e-6  # relative tolerance on the dimensionless numbers
+NUMBERS = ("a_max/(kappa_max*v_max^2)", "v_min/v_max", "tracking_error", "d0/v_max")
+
+
+@dataclasses.dataclass(frozen=True)
+class Coverage:
+    """The robots a card serves: a closed range per dimensionless number (:class:`Dimensionless` order).
+
+    A card's own numbers are covered exactly.  A model conditioned on ``log_a_max`` covers its trained range of
+    a_max/(κ_max·v_max²).  A product card (d₀ = 0) trained on forward speeds v ∈ [0, v_max] covers any
+    v_min/v_max in [−1, 0]: its V for v ≥ 0 does not depend on v_min (from v ≥ 0 a path through reverse passes
+    v = 0, where the robot could stay: at rest nothing moves it and min-over-time of l only falls), and a reversing
+    state is the forward state turned round, V(x, y, −v, θ) = V(x, y, v, θ + π) (the car and the ball disturbance
+    are symmetric).  A smaller tracking error than the card's is covered conservatively: the filter keeps the
+    card's δ."""
+
+    ranges: tuple[tuple[float, float], ...]
+
+    @classmethod
+    def of(cls, car: CarParams, param_ranges: dict | None = None) -> Coverage:
+        own = dataclasses.astuple(Dimensionless.of(car))
+        ranges = [(v, v) for v in own]
+        if "log_a_max" in (param_ranges or {}):
+            lo, hi = param_ranges["log_a_max"]
+            ranges[0] = (math.exp(lo), math.exp(hi))
+        if car.d0 == 0 and car.v_min == 0:
+            ranges[1] = (-1.0, 0.0)
+        if car.tracking_error > 0:
+            ranges[2] = (0.0, car.tracking_error)
+        return cls(tuple(ranges))
+
+    def covers(self, numbers: Dimensionless) -> bool:
+        def tol(x: float) -> float:
+            return COVER_RTOL * abs(x) + 1e-9
+
+        return all(lo - tol(lo) <= v <= hi + tol(hi)
+                   for v, (lo, hi) in zip(dataclasses.astuple(numbers), self.ranges, strict=True))
+
+    def describe(self) -> str:
+        return ", ".join(f"{n} {lo:.4g}" if lo == hi else f"{n} {lo:.4g}..{hi:.4g}"
+                         for n, (lo, hi) in zip(NUMBERS, self.ranges, strict=True))
+
+
 @dataclasses.dataclass(frozen=True)
 class Scaling:
     """x = s·x′, t = τ·t′ between a robot's SI units and primed (model) units."""

@@ -84,3 +84,30 @@ class ValueTable:
 
     def gradient(self, states: np.ndarray) -> np.ndarray:
         return self.value_and_gradient(states)[1]
+
+
+class ReversingTable:
+    """A forward-speed car table (v ∈ [0, v_max]) answered at reversing states by symmetry:
+    V(x, y, v, θ) = V(x, y, −v, θ + π) for v < 0, so ∂V/∂v flips sign and the other partials carry over.
+    Exact for the dynamic Dubins car with a ball disturbance (core/similarity.py, Coverage, says why a forward
+    table also holds for any v_min ∈ [−v_max, 0] when d₀ = 0)."""
+
+    def __init__(self, table: ValueTable):
+        if table.grid.ndim != 4 or table.grid.lo[2] != 0:
+            raise ValueError(f"a reversing table needs a car table over v >= 0, got speeds from {table.grid.lo}")
+        self.table, self.grid = table, table.grid
+
+    def value_and_gradient(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        s = np.array(states, np.float64, copy=True)
+        back = s[..., 2] < 0
+        s[..., 2] = np.abs(s[..., 2])
+        s[..., 3] = np.where(back, s[..., 3] + np.pi, s[..., 3])
+        value, grad = self.table.value_and_gradient(s)
+        grad[..., 2] = np.where(back, -grad[..., 2], grad[..., 2])
+        return value, grad
+
+    def value(self, states: np.ndarray) -> np.ndarray:
+        return self.value_and_gradient(states)[0]
+
+    def gradient(self, states: np.ndarray) -> np.ndarray:
+        return self.value_and_gradient(states)[1]

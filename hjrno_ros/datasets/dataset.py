@@ -23,7 +23,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import Executor, ProcessPoolExecutor, as_completed
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
@@ -44,7 +44,7 @@ SPLITS = ("train", "test")
 TEST_SEED_OFFSET = 1_000_000  # test samples never share a seed with training samples
 _SOLVER_KEYS = {"accuracy", "tolerance", "max_horizon", "criterion", "chunk"}
 _CONFIG_KEYS = {"name", "family", "grid", "n_train", "n_test", "seed", "options", "solver", "parametric_grid",
-                "inflation"}
+                "inflation", "accel_ratio"}
 
 
 def _fail(message: str) -> None:
@@ -65,6 +65,7 @@ class ExperimentConfig:
     solver: dict = dataclasses.field(default_factory=dict)  # keyword arguments of solver.solve
     parametric_grid: int = 10  # parametric family: train on an n x n lattice of (a_max, kappa_max)
     inflation: float = 0.0  # m: car targets are l − inflation (obstacles grown by it; see :meth:`target`)
+    accel_ratio: tuple[float, float] | None = None  # per-sample a_max, log-uniform in [lo, hi] (κ = v_max = 1)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "grid", tuple(int(v) for v in self.grid))
@@ -92,6 +93,13 @@ class ExperimentConfig:
             _fail(f"experiment {self.name!r}: inflation must be a finite number of metres >= 0, got {self.inflation!r}")
         if self.inflation and FAMILIES[self.family].kind == "air3d":
             _fail(f"experiment {self.name!r}: inflation applies to car families, not {self.family}")
+        if self.accel_ratio is not None:
+            ratio = tuple(self.accel_ratio) if isinstance(self.accel_ratio, list | tuple) else ()
+            if len(ratio) != 2 or not all(isinstance(r, int | float) and 0 < r < math.inf for r in ratio) \
+                    or ratio[0] > ratio[1] or FAMILIES[self.family].kind != "car" or self.family == "parametric":
+                _fail(f"experiment {self.name!r}: accel_ratio must be [lo, hi] with 0 < lo <= hi, for a car family "
+                      f"other than parametric, got {self.accel_ratio!r}")
+            object.__setattr__(self, "accel_ratio", tuple(float(r) for r in ratio))
         make_scenario(self.family, self.seed, **self.options)  # unknown or bad options fail here, early
 
     def count(self, split: str) -> int:
@@ -100,8 +108,11 @@ class ExperimentConfig:
     def as_dict(self) -> dict:
         d = dataclasses.asdict(self)
         d["grid"] = list(self.grid)
-        if not self.inflation:
-            d.pop("inflation")  # configs without it keep the digests they always had
+        for key in ("inflation", "accel_ratio"):  # configs without them keep the digests they always had
+            if not d[key]:
+                d.pop(key)
+        if self.accel_ratio:
+            d["accel_ratio"] = list(self.accel_ratio)
         return d
 
     def digest(self) -> str:
@@ -121,6 +132,10 @@ class ExperimentConfig:
                 rng = np.random.default_rng([self.seed, TEST_SEED_OFFSET])
                 a, k = parametric_test_diagonal(self.n_test, rng)[index]
             options.update(a_max=a, kappa_max=k)
+        if self.accel_ratio:  # drawn from its own stream: the geometry of sample i does not depend on it
+            lo, hi = np.log(self.accel_ratio)
+            rng = np.random.default_rng([seed, 0xACCE1])
+            options.update(a_max=float(np.exp(rng.uniform(lo, hi))), kappa_max=1.0, v_max=1.0)
         return make_scenario(self.family, seed, **options)
 
     def target(self, scenario: Scenario, grid: GridSpec) -> np.ndarray:
@@ -265,8 +280,10 @@ def pending(root: Path, config: ExperimentConfig, shard: tuple[int, int]) -> lis
 
 
 def generate(config: ExperimentConfig, root: Path, shard: str | None = None, workers: int = 1,
-             progress: bool = True) -> dict:
-    """Solve every missing sample of this shard, then consolidate the splits that are complete."""
+             progress: bool = True, executor: Executor | None = None) -> dict:
+    """Solve every missing sample of this shard, then consolidate the splits that are complete.  ``executor``
+    (e.g. a Dask cluster's, datasets/cluster.py) solves the samples instead of ``workers`` local processes; its
+    workers write the sample files, so they must see ``root``."""
     shard_kn = parse_shard(shard)
     if workers < 1:
         _fail(f"--workers must be >= 1, got {workers}")
@@ -274,7 +291,7 @@ def generate(config: ExperimentConfig, root: Path, shard: str | None = None, wor
     prepare_root(root, config)
     todo = pending(root, config, shard_kn)
     start = time.perf_counter()
-    results = _run(config, root, todo, workers, progress)
+    results = _run(config, root, todo, workers, progress, executor)
     summary = {
         "experiment": config.name,
         "solved": len(results),
@@ -286,7 +303,8 @@ def generate(config: ExperimentConfig, root: Path, shard: str | None = None, wor
     return summary
 
 
-def _run(config: ExperimentConfig, root: Path, todo: list, workers: int, progress: bool) -> list[dict]:
+def _run(config: ExperimentConfig, root: Path, todo: list, workers: int, progress: bool,
+         executor: Executor | None) -> list[dict]:
     from tqdm import tqdm
 
     bar = tqdm(total=len(todo), unit="sample", desc=f"generate {config.name}", disable=not progress)
@@ -298,16 +316,21 @@ def _run(config: ExperimentConfig, root: Path, todo: list, workers: int, progres
         if not r["converged"]:
             bar.write(f"{r['split']} sample {r['index']}: NOT converged (kept, flagged)")
 
+    def run_on(pool: Executor) -> None:
+        futures = [pool.submit(write_sample, root, config, s, i) for s, i in todo]
+        for future in as_completed(futures):
+            done(future.result())
+
     with bar:
-        if workers == 1:
+        if executor is not None:
+            run_on(executor)
+        elif workers == 1:
             for split, index in todo:
                 done(write_sample(root, config, split, index))
         else:
             with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=exit_with_parent,
                                      initargs=(os.getpid(),)) as pool:
-                futures = [pool.submit(write_sample, root, config, s, i) for s, i in todo]
-                for future in as_completed(futures):
-                    done(future.result())
+                run_on(pool)
     return results
 
 

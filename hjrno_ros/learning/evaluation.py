@@ -22,7 +22,7 @@ import torch
 from hjrno_ros.core.model_card import ModelCard
 from hjrno_ros.datasets.dataset import load_split
 from hjrno_ros.learning import checkpoint
-from hjrno_ros.learning.slices import InputSpec
+from hjrno_ros.learning.slices import InputSpec, param_value
 
 
 @torch.no_grad()
@@ -48,7 +48,8 @@ def predict_table(model, spec: InputSpec, grid, target: np.ndarray, params: np.n
 
 def sample_params(spec: InputSpec, scenario) -> np.ndarray | None:
     """The varying parameters of a scenario in the spec's channel order (None if there are none)."""
-    return np.array([scenario.params[k] for k in spec.param_ranges], np.float32) if spec.param_ranges else None
+    return (np.array([param_value(scenario.params, k) for k in spec.param_ranges], np.float32)
+            if spec.param_ranges else None)
 
 
 def table_metrics(pred: np.ndarray, truth: np.ndarray) -> dict:

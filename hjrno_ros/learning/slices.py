@@ -2,7 +2,8 @@
 
 A slice fixes every state variable but (x, y): the car's (v, θ), Air3D's ψ.  Input channels are
 the V0 slice, then constants: normalised v, cos θ, sin θ (car) or cos ψ, sin ψ (Air3D), then the
-normalised varying parameters (a_max, κ_max for the parametric family).  Values are divided by
+normalised varying parameters (a_max, κ_max for the parametric family; ``log_a_max``, the logarithm of
+a_max/(κ_max·v_max²) in model units, for datasets drawn with an ``accel_ratio`` range).  Values are divided by
 ``value_scale`` (m).  :class:`InputSpec` is stored in the model card, so the node builds exactly
 the inputs the model was trained on.
 """
@@ -65,6 +66,11 @@ class InputSpec:
         return torch.from_numpy(x)
 
 
+def param_value(params: dict, name: str) -> float:
+    """A parameter channel's value: ``params[name]``, or the logarithm of ``params[X]`` for ``log_X``."""
+    return float(np.log(params[name[4:]])) if name.startswith("log_") else float(params[name])
+
+
 def spec_for(split) -> InputSpec:
     """The input spec of a loaded dataset split (family decides the constant channels)."""
     grid, family = split.grid, split.config.family
@@ -72,6 +78,8 @@ def spec_for(split) -> InputSpec:
     if family == "air3d":
         return InputSpec("air3d", scale)
     params = {"a_max": (0.5, 1.5), "kappa_max": (0.5, 1.5)} if family == "parametric" else {}
+    if split.config.accel_ratio:
+        params = {"log_a_max": tuple(float(np.log(r)) for r in split.config.accel_ratio)}
     return InputSpec("car", scale, (grid.lo[2], grid.hi[2]), params)
 
 
@@ -100,7 +108,8 @@ class SliceSet:
         self.angle_axis = 3 if spec.kind == "car" else 2
         self.slice_shape = split.grid.shape[2:]
         self.n_slices = int(np.prod(self.slice_shape))
-        self.params = np.array([[s.params[k] for k in spec.param_ranges] for s in split.scenarios], np.float32)
+        self.params = np.array([[param_value(s.params, k) for k in spec.param_ranges] for s in split.scenarios],
+                               np.float32)
         self.angles = split.grid.axis(self.angle_axis)
         self.speeds = split.grid.axis(2) if spec.kind == "car" else np.zeros(1)
 

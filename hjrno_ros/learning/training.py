@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from hjrno_ros import versions
+from hjrno_ros.core.similarity import NUMBERS, Coverage
 from hjrno_ros.datasets.dataset import load_split
 from hjrno_ros.learning import checkpoint
 from hjrno_ros.learning.operators import build_model, count_parameters
@@ -233,6 +234,11 @@ def evaluate_slices(model, slice_set: SliceUnion, seed: int, n: int = 512, batch
 def _card(cfg: TrainConfig, model, spec, folders: list[Path], tested: list[Path], train_splits: list,
           test_splits: list, command: str | None) -> dict:
     grid = train_splits[0].grid
+    car = train_splits[0].scenarios[0].dynamics_params()
+    if "log_a_max" in spec.param_ranges:  # conditioned: the card's own car is the reference robot a = κ = v_max = 1
+        car = dataclasses.replace(car, a_max=1.0)
+    coverage = ({n: list(r) for n, r in zip(NUMBERS, Coverage.of(car, spec.param_ranges).ranges, strict=True)}
+                if spec.kind == "car" else None)
     return {
         "kind": cfg.model,
         "config": model.config,
@@ -240,7 +246,8 @@ def _card(cfg: TrainConfig, model, spec, folders: list[Path], tested: list[Path]
         "inputs": spec.as_dict(),
         "grid": grid.as_dict(),
         "window": {"lo": list(grid.lo[:2]), "hi": list(grid.hi[:2]), "shape": list(grid.shape[:2])},
-        "dynamics": train_splits[0].scenarios[0].dynamics_params().as_dict(),
+        "dynamics": car.as_dict(),
+        "coverage": coverage,
         "dataset": {"experiment": "+".join(s.config.name for s in train_splits),
                     "families": [s.config.family for s in train_splits],
                     "folders": [str(d) for d in folders],

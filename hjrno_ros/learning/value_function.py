@@ -12,6 +12,8 @@ over one step in v and θ.  4 slices, not the 9 of a 3 × 3 stencil: inference c
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import torch
 
@@ -20,7 +22,7 @@ from hjrno_ros.core.grids import GridSpec
 from hjrno_ros.core.value_table import ValueTable
 from hjrno_ros.learning import checkpoint
 from hjrno_ros.learning.operators.cnn import CNN
-from hjrno_ros.learning.slices import InputSpec
+from hjrno_ros.learning.slices import InputSpec, param_value
 
 
 def channels_last_cnns(model: torch.nn.Module) -> None:
@@ -76,17 +78,32 @@ class LearnedValueFunction:
         out = self.model(x.to(self.device))[:, 0].cpu().numpy() * self.spec.value_scale
         return np.minimum(out, v0[None])  # V∞ ≤ V0 holds for the true value function
 
-    def local_table(self, v0: np.ndarray, center: tuple[float, float], v: float, theta: float) -> ValueTable:
+    def condition(self, robot: CarParams | None = None) -> np.ndarray | None:
+        """The parameter channels for ``robot`` in the card's units (default: the card's own car), (1, P)."""
+        names = list(self.spec.param_ranges)
+        if not names:
+            return None
+        values = dataclasses.asdict(robot or self.params)
+        return np.array([[param_value(values, name) for name in names]], np.float32)
+
+    def local_table(self, v0: np.ndarray, center: tuple[float, float], v: float, theta: float,
+                    robot: CarParams | None = None) -> ValueTable:
         """V over the window × a 2 × 2 (v, θ) stencil (v ± dv/2, θ ± dθ/2, dv and dθ the card grid's
-        steps; v kept within [v_min, v_max]): evaluate V and ∇V at the state."""
+        steps; v kept within [v_min, v_max]): evaluate V and ∇V at the state.  ``robot``: a covered robot in
+        the card's units (a conditioned model's channels).  A forward-only card answers a reversing state by
+        symmetry, V(x, y, −v, θ) = V(x, y, v, θ + π) (core/similarity.py, Coverage)."""
+        mirror = v < 0 and self.params.v_min >= 0
         dv, dtheta = self.grid.spacings[2], self.grid.spacings[3]
-        v_mid = float(np.clip(v, self.params.v_min + dv / 2, self.params.v_max - dv / 2))
+        v_mid = float(np.clip(-v if mirror else v, self.params.v_min + dv / 2, self.params.v_max - dv / 2))
         speeds = np.array([v_mid - dv / 2, v_mid + dv / 2])
         headings = np.array([theta - dtheta / 2, theta + dtheta / 2])
-        vv, tt = np.meshgrid(speeds, headings, indexing="ij")
-        slices = self.predict(v0, vv.ravel(), tt.ravel())
+        vv, tt = np.meshgrid(speeds, headings + (np.pi if mirror else 0.0), indexing="ij")
+        params = self.condition(robot)
+        slices = self.predict(v0, vv.ravel(), tt.ravel(), None if params is None else np.repeat(params, 4, 0))
         nx, ny = v0.shape
         table = np.moveaxis(slices.reshape(2, 2, nx, ny), (0, 1), (2, 3))
+        if mirror:
+            speeds, table = -speeds[::-1], table[:, :, ::-1]
         grid = GridSpec((self.grid.lo[0] + center[0], self.grid.lo[1] + center[1], speeds[0], headings[0]),
                         (self.grid.hi[0] + center[0], self.grid.hi[1] + center[1], speeds[-1], headings[-1]),
                         (nx, ny, 2, 2))

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -10,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from hjrno_ros.core.model_card import ModelCard, paths
-from hjrno_ros.ros.robot import ScaledValueFunction, covered_scaling, robot_params
+from hjrno_ros.ros.robot import ScaledValueFunction, covered_scaling, filter_params, robot_params
 
 
 def bundled_model_candidates(name: str = "default") -> list[Path]:
@@ -79,11 +78,12 @@ def load_model(cfg: dict[str, Any]) -> tuple[ModelCard, Any, Path]:
                              "solver over the map)")
         return card, SolverGrid(card), stem
     robot = robot_params(card.dynamics, cfg)
-    scaling = covered_scaling(card.dynamics, robot)
-    scaled = not (math.isclose(scaling.length, 1.0) and math.isclose(scaling.time, 1.0))
+    scaling = covered_scaling(card.dynamics, robot, card.inputs.get("param_ranges"))
+    robot = filter_params(card.dynamics, robot)
+    scaled = robot != card.dynamics
     if scaled and cfg["refine_horizon"] > 0:
-        raise ValueError("refine_horizon needs the model card's own car (the refinement solves in its units); "
-                         f"the robot is {scaling.length:.4g} times its size")
+        raise ValueError("refine_horizon needs the model card's own car (the refinement solves its dynamics); "
+                         f"the robot is {scaling.length:.4g} times its size with limits {robot}")
     from hjrno_ros.learning.value_function import LearnedValueFunction  # torch: seconds, after the cheap checks
 
     try:

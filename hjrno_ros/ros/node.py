@@ -190,7 +190,7 @@ class BrtNode(LifecycleNode):
 
     # ------------------------------------------------------------------ parameters
     def _apply_settings(self, cfg: dict[str, Any]) -> None:
-        self.settings = parameters.filter_settings(self.card, cfg, self.scale)
+        self.settings = parameters.filter_settings(self.card, cfg, self.scale, self.vf.params)
         self.refined_settings, self.refined_from = parameters.refined_filter_settings(self.card, self.settings, cfg)
         if self.epsilon_below_calibrated:
             self.get_logger().warning(

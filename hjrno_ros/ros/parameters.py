@@ -14,6 +14,7 @@ from typing import Any
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
 from hjrno_ros.core import safety_filter
+from hjrno_ros.core.dynamics import CarParams
 from hjrno_ros.core.model_card import ModelCard
 
 
@@ -163,10 +164,13 @@ def obstacle_threshold(cfg: dict[str, Any]) -> int:
     return int(cfg["costmap_threshold"] if cfg["map_kind"] == "costmap" else cfg["occupied_threshold"])
 
 
-def filter_settings(card: ModelCard, cfg: dict[str, Any], scale: float = 1.0) -> safety_filter.FilterSettings:
+def filter_settings(card: ModelCard, cfg: dict[str, Any], scale: float = 1.0,
+                    robot: CarParams | None = None) -> safety_filter.FilterSettings:
     """The filter's settings: ``epsilon``, or for -1 the card's calibrated margin (a length: times ``scale``, the
-    robot's size against the card's car)."""
-    eps = cfg["epsilon"] if cfg["epsilon"] >= 0 else card.margin() * scale
+    robot's size against the card's car) plus the ``robot``'s sampling margin over one control period."""
+    dt = float(cfg["control_period"])
+    sampled = safety_filter.sampling_margin(robot, dt) if robot is not None else 0.0
+    eps = cfg["epsilon"] if cfg["epsilon"] >= 0 else card.margin() * scale + sampled
     return safety_filter.FilterSettings(epsilon=float(eps), mode=cfg["filter_mode"],
                                         blend_width=float(cfg["blend_width"]), dt=float(cfg["control_period"]),
                                         decay_rate=float(cfg["decay_rate"]))

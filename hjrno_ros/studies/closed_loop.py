@@ -26,7 +26,7 @@ from hjrno_ros.core.safety_filter import twist_to_control
 from hjrno_ros.core.value_table import ValueTable
 from hjrno_ros.studies.simulation import ball, rk4_step
 
-CONTROLLERS = ("goal", "straight")
+CONTROLLERS = ("goal", "straight", "reverse", "spin")
 DISTURBANCES = ("random", "worst")
 # A filter maps (states (n, 4), nominal twists (n, 2)) to (commands (n, 2), intervened (n,)).
 Filter = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -40,10 +40,11 @@ class World:
     shapes: tuple
     truth: ValueTable
     params: CarParams
+    scale: float = 1.0  # m per unit of the shapes' coordinates (a world seen at another robot's size)
 
     def clearance(self, points: np.ndarray) -> np.ndarray:
         """l(x, y) in metres for points ``(..., 2)`` (or states ``(..., 4)``)."""
-        return union_sdf(self.shapes, np.asarray(points)[..., :2])
+        return self.scale * union_sdf(self.shapes, np.asarray(points)[..., :2] / self.scale)
 
     @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -60,6 +61,12 @@ class EpisodeSettings:
     edge_margin: float = 0.5  # m: starts and goals stay this far inside the window
     goal_clearance: float = 0.5  # m: goals have l ≥ this
     min_goal_distance: float = 3.0  # m
+    careless: bool = False  # also reverse (when the robot can) and spin-in-place drivers, 1 episode in 10 each
+
+    def scaled(self, length: float) -> EpisodeSettings:
+        """The same episodes for a robot ``length`` times the size (times unchanged)."""
+        return dataclasses.replace(self, **{f: getattr(self, f) * length for f in (
+            "goal_tolerance", "start_margin", "edge_margin", "goal_clearance", "min_goal_distance")})
 
 
 @dataclasses.dataclass
@@ -86,7 +93,8 @@ def has_safe_states(grid, values: np.ndarray, settings: EpisodeSettings) -> bool
 
 def draw_episodes(world: World, n: int, settings: EpisodeSettings, seed: int, first: int = 0) -> Episodes:
     """``n`` episodes with starts in the true safe set; episode ``first + i`` alternates controller
-    (even: goal, odd: straight) and disturbance (pairs: random, worst)."""
+    (even: goal, odd: straight; with ``settings.careless`` episodes 8 and 9 of every 10 reverse, if the robot
+    can, and spin in place) and disturbance (pairs: random, worst)."""
     rng = np.random.default_rng(seed)
     lo, hi = world.bounds[0] + settings.edge_margin, world.bounds[1] - settings.edge_margin
     p = world.params
@@ -107,19 +115,27 @@ def draw_episodes(world: World, n: int, settings: EpisodeSettings, seed: int, fi
     pick = np.where(far.any(1), far.argmax(1), np.arange(n))  # the first far-enough goal
     index = first + np.arange(n)
     steps = int(round(settings.duration / settings.dt))
-    return Episodes(starts, goals[pick], np.array(CONTROLLERS)[index % 2], np.array(DISTURBANCES)[(index // 2) % 2],
+    controller = np.array(CONTROLLERS)[index % 2]
+    if settings.careless:
+        controller[index % 10 == 8] = "reverse" if p.v_min < 0 else "straight"
+        controller[index % 10 == 9] = "spin"
+    return Episodes(starts, goals[pick], controller, np.array(DISTURBANCES)[(index // 2) % 2],
                     ball(rng, (steps, n), 1.0))
 
 
 def nominal_twist(params: CarParams, states: np.ndarray, goals: np.ndarray, controller: np.ndarray) -> np.ndarray:
-    """Careless twists ``(n, 2)``: drive to the goal (turn towards it, slow down near it) or straight."""
+    """Careless twists ``(n, 2)``: drive to the goal (turn towards it, slow down near it), straight at full speed,
+    straight in reverse at full speed, or spin in place at κ_max·v_max."""
     delta = goals - states[:, :2]
     error = wrap_angle(np.arctan2(delta[:, 1], delta[:, 0]) - states[:, 3])
     dist = np.linalg.norm(delta, axis=-1)
     linear = params.v_max * np.clip(dist, 0.0, 1.0) * np.clip(np.cos(error), 0.3, 1.0)
     angular = np.clip(2.0 * error, -2.0, 2.0) * np.maximum(states[:, 2], 0.1)
-    straight = controller == "straight"
-    return np.column_stack([np.where(straight, params.v_max, linear), np.where(straight, 0.0, angular)])
+    linear = np.select([controller == "straight", controller == "reverse", controller == "spin"],
+                       [params.v_max, params.v_min, 0.0], linear)
+    angular = np.where(controller == "spin", params.kappa_max * params.v_max,
+                       np.where(controller == "goal", angular, 0.0))
+    return np.column_stack([linear, angular])
 
 
 def rk4(params: CarParams, x: np.ndarray, u: np.ndarray, d: np.ndarray, dt: float) -> np.ndarray:
@@ -149,7 +165,7 @@ def run_episodes(world: World, episodes: Episodes, filt: Filter | None, settings
     lo, hi = world.bounds
     alive = np.ones(n, bool)
     outcome = np.full(n, "timeout", dtype=object)
-    steps, interventions = np.zeros(n, int), np.zeros(n, int)
+    steps, interventions, raised = np.zeros(n, int), np.zeros(n, int), np.zeros(n, int)
     travelled, min_clear = np.zeros(n), world.clearance(x)
     jerk_sq, angacc_sq = np.zeros(n), np.zeros(n)
     last_a, last_w = np.full(n, np.nan), np.full(n, np.nan)
@@ -166,10 +182,12 @@ def run_episodes(world: World, episodes: Episodes, filt: Filter | None, settings
         twist = nominal_twist(p, xa, episodes.goals[idx], episodes.controller[idx])
         if filt is not None:
             start = time.perf_counter()
+            nominal = twist
             twist, intervened = filt(xa, twist)
             filter_s += time.perf_counter() - start
             decisions += idx.size
             interventions[idx] += intervened
+            raised[idx] += np.abs(twist[:, 0]) > np.abs(nominal[:, 0]) + 1e-9
         u = twist_to_control(p, xa, twist, dt)
         d = car_disturbance_bound(p, xa[:, 2])[:, None] * episodes.noise[k, idx]  # ‖d‖ ≤ δ·|v| + d₀
         if worst[idx].any():
@@ -194,7 +212,8 @@ def run_episodes(world: World, episodes: Episodes, filt: Filter | None, settings
             done = idx[mask & alive[idx]]
             outcome[done] = name
             alive[done] = False
-    result = {"outcome": outcome, "steps": steps, "interventions": interventions, "travelled": travelled,
+    result = {"outcome": outcome, "steps": steps, "interventions": interventions, "raised_speed": raised,
+              "travelled": travelled,
             "min_clearance": min_clear, "jerk_rms": np.sqrt(jerk_sq / np.maximum(steps - 1, 1)),
             "angacc_rms": np.sqrt(angacc_sq / np.maximum(steps - 1, 1)),
             "filter_us": np.full(n, 1e6 * filter_s / max(decisions, 1)),
@@ -216,6 +235,7 @@ def summarize(results: list[dict]) -> dict:
         "collision_rate": float(collided.mean()),
         "collisions_worst_d": int((collided & (cat["disturbance"] == "worst")).sum()),
         "intervention_rate": float(cat["interventions"].sum() / max(steps, 1)),
+        "raised_speed": int(cat["raised_speed"].sum()),
         "goals_reached": float((cat["outcome"][goal] == "goal").mean()) if goal.any() else float("nan"),
         "distance_m": float(cat["travelled"].mean()),
         "min_clearance_m": float(cat["min_clearance"].min()),

@@ -15,16 +15,23 @@ import json
 import time
 from pathlib import Path
 
+import numpy as np
+
+from hjrno_ros.core.dynamics import CarParams
 from hjrno_ros.core.model_card import ModelCard
-from hjrno_ros.core.safety_filter import MODES, FilterSettings, filter_batch
+from hjrno_ros.core.safety_filter import MODES, FilterSettings, filter_batch, sampling_margin
+from hjrno_ros.core.similarity import Dimensionless, Scaling
 from hjrno_ros.core.stop_zone import StopZoneSettings, stop_zone_filter
-from hjrno_ros.core.value_table import ValueTable
+from hjrno_ros.core.value_table import ReversingTable, ValueTable
 from hjrno_ros.datasets import held_out
 from hjrno_ros.learning.calibration import DEFAULT_MARGIN
 from hjrno_ros.studies import closed_loop
 from hjrno_ros.studies.closed_loop import EpisodeSettings, World
 
 TRUTH = "ground_truth"
+# Robots a study can drive besides the worlds' own car: (κ_max 1/m, v_max m/s); a_max takes each world's
+# a_max/(κ_max·v_max²), so the solved ground truth holds exactly at the robot's size (core/similarity.py).
+ROBOTS = {"turtlebot3": (2.84 / 0.22, 0.22)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,14 +68,55 @@ def refined_label(label: str, horizon: float) -> str:
     return f"{label}_refined{horizon:g}s"
 
 
+def robot_world(solved: held_out.Solved, predicted: dict[str, np.ndarray], robot: str | None
+                ) -> tuple[World, dict[str, ValueTable | ReversingTable]]:
+    """A held-out world and its tables (ground truth + models) as seen by ``robot`` (None: the world's car).  A
+    product world solved for forward speeds gets a reversing robot (v_min = −v_max) and its tables answer
+    reversing states by symmetry (:class:`ReversingTable`)."""
+    p = solved.scenario.dynamics_params()
+    reverse = p.d0 == 0 and p.v_min == 0
+    if reverse:
+        p = dataclasses.replace(p, v_min=-p.v_max)
+    scaling = Scaling(1.0, 1.0)
+    if robot is not None:
+        if robot not in ROBOTS:
+            raise ValueError(f"unknown robot {robot!r}; known: {', '.join(ROBOTS)}")
+        kappa, v_max = ROBOTS[robot]
+        target = CarParams(a_max=Dimensionless.of(p).accel_ratio * kappa * v_max ** 2, kappa_max=kappa,
+                           d0=p.d0 / p.v_max * v_max, v_min=p.v_min / p.v_max * v_max, v_max=v_max,
+                           tracking_error=p.tracking_error)
+        mine, theirs = Scaling.of(p), Scaling.of(target)
+        scaling, p = Scaling(theirs.length / mine.length, theirs.time / mine.time), target
+
+    def table(values: np.ndarray) -> ValueTable | ReversingTable:
+        t = ValueTable(scaling.grid_to_robot(solved.grid), values * scaling.length)
+        return ReversingTable(t) if reverse else t
+
+    world = World(solved.name, solved.scenario.shapes, table(solved.value), p, scale=scaling.length)
+    return world, {TRUTH: world.truth, **{label: table(v) for label, v in predicted.items()}}
+
+
+def node_inflated(solved: held_out.Solved) -> held_out.Solved:
+    """The world as brt_node sees it: obstacles grown by the grid's h/√2 (its default ``inflation_radius``), so
+    walls thinner than a cell cannot hide between nodes.  Where the dataset was solved without it this is exact:
+    V∞ of l − r is V∞ of l minus r (the payoff is the least l along a path)."""
+    r = max(0.0, solved.grid.half_cell_diagonal - solved.inflation)
+    return dataclasses.replace(solved, target=solved.target - np.float32(r), value=solved.value - np.float32(r),
+                               inflation=solved.inflation + r)
+
+
 def make_filter(choice: FilterChoice, world: World, tables: dict[str, ValueTable],
                 stop: StopZoneSettings, dt: float, decay_rate: float) -> closed_loop.Filter | None:
+    """The filter of one table row; margins (ε, stop-zone distances) in the world's units scale with it."""
     if choice.kind == "none":
         return None
     if choice.kind == "stop_zone":
+        stop = dataclasses.replace(stop, stop_distance=stop.stop_distance * world.scale,
+                                   footprint_margin=stop.footprint_margin * world.scale)
         return lambda s, nominal: stop_zone_filter(stop, world.clearance, s, nominal)
     table = tables[choice.source]
-    settings = FilterSettings(epsilon=choice.epsilon, mode=choice.mode, dt=dt, decay_rate=decay_rate)
+    eps = choice.epsilon * world.scale + sampling_margin(world.params, dt)  # as brt_node composes its default ε
+    settings = FilterSettings(epsilon=eps, mode=choice.mode, dt=dt, decay_rate=decay_rate)
     return lambda s, nominal: filter_batch(world.params, settings, s, *table.value_and_gradient(s), nominal)
 
 
@@ -76,13 +124,14 @@ def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, s
               truth_epsilon: float = DEFAULT_MARGIN, part: str = "fresh", settings: EpisodeSettings = EpisodeSettings(),
               stop: StopZoneSettings = StopZoneSettings(), filters: list[str] | None = None,
               progress=print, unconverged: bool = False, decay_rate: float = FilterSettings.decay_rate,
-              inflation_at: str = "input", refine: float = 0.0) -> dict:
+              inflation_at: str = "input", refine: float = 0.0, robot: str | None = None) -> dict:
     """Run every filter over ≥ ``episodes`` episodes spread evenly over the held-out worlds
     (``inflation_at``: how the learned maps meet the datasets' inflation, ``held_out.INFLATION_AT``).
     ``refine`` > 0 adds per model a filter on its table refined by ``refine`` simulated s of the solver
     warm-started from it (what brt_node's ``refine_horizon`` does), with the card's ε for that table
-    (:meth:`ModelCard.refined_margin`)."""
-    solved = held_out.load(folders, part, unconverged)
+    (:meth:`ModelCard.refined_margin`).  ``robot``: drive a :data:`ROBOTS` robot instead of the worlds' car (the
+    worlds, margins and episode lengths at its size)."""
+    solved = [node_inflated(s) for s in held_out.load(folders, part, unconverged)]
     if not solved:
         raise ValueError(f"no converged held-out scenarios in {folders} ({part})")
     usable = [closed_loop.has_safe_states(s.grid, s.value, settings) for s in solved]
@@ -116,12 +165,13 @@ def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, s
     results: dict[str, list[dict]] = {c.name: [] for c in choices}
     traces: dict[str, tuple] = {}
     for w, s in enumerate(solved):
-        world = World(s.name, s.scenario.shapes, ValueTable(s.grid, s.value), s.scenario.dynamics_params())
-        tables = {TRUTH: world.truth, **{label: ValueTable(s.grid, p[w]) for label, p in predicted.items()}}
-        eps = closed_loop.draw_episodes(world, per_world, settings, seed=seed * 100003 + w, first=w * per_world)
+        world, tables = robot_world(s, {label: p[w] for label, p in predicted.items()}, robot)
+        world_settings = settings.scaled(world.scale)
+        eps = closed_loop.draw_episodes(world, per_world, world_settings, seed=seed * 100003 + w,
+                                        first=w * per_world)
         for c in choices:
             filt = make_filter(c, world, tables, stop, settings.dt, decay_rate)
-            r = closed_loop.run_episodes(world, eps, filt, settings, trace=w == 0)
+            r = closed_loop.run_episodes(world, eps, filt, world_settings, trace=w == 0)
             if w == 0:
                 traces[c.name] = r.pop("trace")
             results[c.name].append(r)
@@ -138,11 +188,13 @@ def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, s
             "stop_zone": dataclasses.asdict(stop), "models": {k: str(v) for k, v in models.items()},
             "seed": seed, "truth_epsilon": truth_epsilon, "qp_decay_rate": decay_rate,
             "unconverged_worlds_allowed": unconverged, "inflation_at": inflation_at,
-            "collisions_by_world": where, "first_world": solved[0], "traces": traces}
+            "collisions_by_world": where, "first_world": solved[0], "traces": traces,
+            "robot": robot or "the worlds car", "last_world_robot": dataclasses.asdict(world.params)}
 
 
 COLUMNS = [("filter", "filter", "{}"), ("episodes", "episodes", "{}"), ("collisions", "collisions", "{}"),
            ("collisions_worst_d", "of them worst-case d", "{}"), ("intervention_rate", "intervention rate", "{:.3f}"),
+           ("raised_speed", "|v| above nominal", "{}"),
            ("goals_reached", "goals reached", "{:.2f}"), ("distance_m", "distance m", "{:.2f}"),
            ("min_clearance_m", "min clearance m", "{:.3f}"), ("mean_min_clearance_m", "mean min clearance m",
                                                               "{:.2f}"),
@@ -164,8 +216,10 @@ def write_tables(study: dict, out: Path, command: str) -> tuple[Path, Path, Path
     md = [f"# Closed-loop safety filters ({time.strftime('%Y-%m-%d')})", "", f"Command: `{command}`", "",
           f"{len(study['worlds'])} held-out worlds ({', '.join(sorted({w.split('/')[0] for w in study['worlds']}))}), "
           f"{study['episodes_per_world']} episodes each; duration {study['settings']['duration']} s, "
-          f"dt {study['settings']['dt']} s; controllers alternate goal / straight, disturbance alternates "
-          "random / worst-case (ground-truth gradient), ‖d‖ ≤ d_max.  Learned maps: "
+          f"dt {study['settings']['dt']} s; controllers alternate goal / straight"
+          + (" (1 in 10 reverses, 1 in 10 spins in place)" if study['settings'].get('careless') else "")
+          + f", disturbance alternates random / worst-case (ground-truth gradient), ‖d‖ ≤ δ·|v| + d₀; robot: "
+          f"{study.get('robot', 'the worlds car')}.  Learned maps: "
           f"{study['map_inference_ms']:.0f} ms per world for the whole (v, θ) table (all models)"
           + ("; they read l and the datasets' inflation comes off their output (--inflation-at output)."
              if study.get("inflation_at") == "output" else ".")

@@ -13,6 +13,9 @@ it knows its dynamics, its default grid and its target l on a grid (l > 0 outsid
 ``air3d``      random evader and pursuer shapes in their body frames; l via the Minkowski sum
 ``windows``    a robot-centred 10 m window of a larger (16 m) map: random blobs and wall segments
                that cross the window edge, the window centre (the robot) ≥ 0.3 m from everything
+``plans``      a robot-centred window of a generated floor plan: rooms and doors, corridors and dead
+               ends, warehouse shelves, thin walls, clutter, unknown patches, the map edge
+               (truth/floor_plans.py; in model units for the product model)
 =============  ==============================================================================
 
 Reproducibility: the random stream is ``np.random.default_rng([seed, family index])`` (the
@@ -36,59 +39,16 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
-from scipy.spatial import ConvexHull
 
 from hjrno_ros.core.dynamics import Air3DParams, CarParams, car_preset
-from hjrno_ros.core.geometry import (
-    Box,
-    ClosedSpline,
-    Disk,
-    Ellipse,
-    Shape,
-    air3d_collision_sdf,
-    shape_from_dict,
-    union_sdf,
-)
+from hjrno_ros.core.geometry import ClosedSpline, air3d_collision_sdf, shape_from_dict, union_sdf
 from hjrno_ros.core.grids import GridSpec, air3d_grid, car_grid
+from hjrno_ros.truth.floor_plans import PLAN_STYLES, build_indoor, build_plans, build_windows
+from hjrno_ros.truth.shapes import DOMAIN_HI, DOMAIN_LO, ROUNDNESS, random_smooth_shape
 from hjrno_ros.truth.systems import Air3D, DynamicDubinsCar
 
-DOMAIN_LO, DOMAIN_HI = -5.0, 5.0  # car families: the x-y window [-5, 5]² m
+__all__ = ["DOMAIN_HI", "DOMAIN_LO", "FAMILIES", "Scenario", "make_scenario", "random_smooth_shape"]
 EDGE_MARGIN = 0.5  # m, free band between obstacles (grown ones included) and the domain edge
-ROUNDNESS = 0.6  # random smooth shapes: polar radii drawn in [ROUNDNESS·R, R]
-N_ANGLES = 8  # polar samples of a random smooth shape
-DOOR_CLEARANCE = 1.0  # m, clutter-free distance around a door gap (beyond its half width)
-CLUTTER_GAP = 0.8  # m, minimum free gap between clutter items and any other obstacle
-WALL_END_MARGIN = 0.3  # m, a door gap keeps this far from the ends of its wall
-
-
-def random_smooth_shape(
-    rng: np.random.Generator, center: tuple[float, float], radius_range: tuple[float, float], n_angles: int = N_ANGLES
-) -> ClosedSpline:
-    """Smooth random blob: radii in ``radius_range`` at evenly spaced (randomly offset) angles,
-    their convex hull, and the closed cubic spline through the hull points.
-
-    The boundary stays within ``radius_range[1]`` of ``center`` (the spline is scaled down if it
-    overshoots), so a blob placed ≥ R from the domain edge is inside the domain.
-    """
-    lo, hi = (float(r) for r in radius_range)
-    if not (0 < lo <= hi and math.isfinite(hi)):
-        raise ValueError(f"radius_range must satisfy 0 < lo <= hi < inf, got {radius_range}")
-    if n_angles < 5:
-        raise ValueError(f"n_angles must be >= 5 (the spline needs >= 4 hull points), got {n_angles}")
-    step = 2 * math.pi / n_angles
-    for _ in range(100):
-        angles = rng.uniform(0.0, step) + step * np.arange(n_angles)
-        pts = rng.uniform(lo, hi, n_angles)[:, None] * np.stack([np.cos(angles), np.sin(angles)], -1)
-        hull = ConvexHull(pts).vertices  # counter-clockwise in 2-D
-        if len(hull) >= 4:
-            break
-    else:  # only reachable with an extreme radius ratio
-        raise ValueError(f"could not draw a shape with >= 4 hull points from radius_range {radius_range}")
-    pts = pts[hull]
-    reach = float(np.max(np.hypot(*ClosedSpline(pts).boundary().T)))
-    if reach > hi:
-        pts = pts * (hi / reach * (1 - 1e-9))
-    return ClosedSpline(pts + np.asarray(center, float))
 
 
 def growth_radius(law: str, c: float, k: float, v) -> np.ndarray:
@@ -316,142 +276,6 @@ def _build_air3d(draw: _Draw) -> tuple[list, dict]:
     return shapes, {"evader_radius": r_e, "pursuer_radius": r_p, **params}
 
 
-def _segment_box(a: tuple[float, float], b: tuple[float, float], thickness: float) -> Box:
-    """Axis-aligned wall of ``thickness`` from point a to point b (same x or same y)."""
-    (xa, ya), (xb, yb) = a, b
-    half = (abs(xb - xa) / 2, thickness / 2) if ya == yb else (thickness / 2, abs(yb - ya) / 2)
-    return Box(((xa + xb) / 2, (ya + yb) / 2), half)
-
-
-def _door_wall(
-    rng: np.random.Generator,
-    fixed: float,
-    span: tuple[float, float],
-    free: tuple[float, float],
-    vertical: bool,
-    width: float,
-    thickness: float,
-    keep_out: Callable[[float], bool] = lambda s: False,
-) -> tuple[list[Box], float]:
-    """Wall at x = fixed (vertical) or y = fixed over ``span``, split by a door gap of ``width`` whose
-    centre s lies in the ``free`` stretch (between the walls it joins) WALL_END_MARGIN from its ends."""
-    for _ in range(1000):
-        s = float(rng.uniform(free[0] + width / 2 + WALL_END_MARGIN, free[1] - width / 2 - WALL_END_MARGIN))
-        if not keep_out(s):
-            break
-    else:
-        raise ValueError("could not place a door gap on an interior wall")
-    pt = (lambda u: (fixed, u)) if vertical else (lambda u: (u, fixed))
-    segments = [(span[0], s - width / 2), (s + width / 2, span[1])]
-    return [_segment_box(pt(a), pt(b), thickness) for a, b in segments], s
-
-
-def _clutter_item(rng: np.random.Generator, center: np.ndarray, size: float) -> Shape:
-    """A box, disk or ellipse within ``size`` of ``center``."""
-    kind = ("box", "disk", "ellipse")[int(rng.integers(3))]
-    u, angle = rng.uniform(0.5, 1.0, 2), float(rng.uniform(-math.pi, math.pi))
-    c = tuple(center.tolist())
-    if kind == "disk":
-        return Disk(c, size)
-    if kind == "box":
-        return Box(c, tuple((size / math.sqrt(2) * u).tolist()), angle)
-    return Ellipse(c, (size, size * float(u[0])), angle)
-
-
-def _build_indoor(draw: _Draw) -> tuple[list, dict]:
-    car, rng = draw.dynamics(CarParams), draw.rng
-    t = draw.uniform("wall_thickness")
-    n_walls, n_clutter = draw.integer("n_walls"), draw.integer("n_clutter")
-    xw, yw = draw.uniform("wall_positions"), draw.uniform("wall_positions")
-    widths = [draw.uniform("door_widths"), draw.uniform("door_widths")][:n_walls]
-    side = DOMAIN_LO if rng.integers(2) == 0 else DOMAIN_HI
-    lo, hi, ext = DOMAIN_LO, DOMAIN_HI, DOMAIN_HI + t
-    # Outer walls straddle the domain edge: a band t wide inside the domain (and as much outside).
-    walls: list = [
-        Box((lo, 0.0), (t, ext)),
-        Box((hi, 0.0), (t, ext)),
-        Box((0.0, lo), (ext, t)),
-        Box((0.0, hi), (ext, t)),
-    ]
-    roles = ["outer_wall"] * 4
-    junction = (lambda y: abs(y - yw) < widths[0] / 2 + t / 2 + DOOR_CLEARANCE) if n_walls == 2 else (lambda y: False)
-    more, yd = _door_wall(rng, xw, (lo + t / 2, hi - t / 2), (lo + t, hi - t), True, widths[0], t, junction)
-    walls, doors = walls + more, [(xw, yd)]
-    if n_walls == 2:  # from the outer wall on `side` to wall 1
-        span, free = (
-            ((side + t / 2, xw), (side + t, xw - t / 2)) if side < xw else ((xw, side - t / 2), (xw + t / 2, side - t))
-        )
-        more, xd = _door_wall(rng, yw, span, free, False, widths[1], t)
-        walls, doors = walls + more, doors + [(xd, yw)]
-    roles += ["wall"] * (len(walls) - 4)
-    clutter, sizes = [], []
-    for _ in range(200 * n_clutter):
-        if len(clutter) == n_clutter:
-            break
-        s = draw.uniform("clutter_sizes")
-        c = rng.uniform(lo + t + s + CLUTTER_GAP, hi - t - s - CLUTTER_GAP, 2)
-        if (
-            union_sdf(walls, c) >= s + CLUTTER_GAP
-            and all(math.dist(c, d) >= w / 2 + DOOR_CLEARANCE + s for d, w in zip(doors, widths, strict=False))
-            and all(math.dist(c, p.center) >= s + q + CLUTTER_GAP for p, q in zip(clutter, sizes, strict=False))
-        ):
-            clutter.append(_clutter_item(rng, c, s))
-            sizes.append(s)
-    if len(clutter) < n_clutter:
-        raise ValueError(f"could not place {n_clutter} clutter items")
-    params = {
-        "wall_thickness": t,
-        "n_walls": n_walls,
-        "n_clutter": n_clutter,
-        "wall_positions": [xw, yw][:n_walls],
-        "door_widths": widths,
-        "doors": [[float(x), float(y)] for x, y in doors],
-        "clutter_sizes": sizes,
-        "shape_roles": roles + ["clutter"] * n_clutter,
-        **car,
-    }
-    return walls + clutter, params
-
-
-WINDOW_MAP_HALF = 8.0  # m: windows family, obstacles anywhere in [-8, 8]² around the 10 m window
-ROBOT_CLEARANCE = 0.3  # m: windows family, free disk around the window centre (the robot)
-
-
-def _build_windows(draw: _Draw) -> tuple[list, dict]:
-    """What brt_node feeds its model: a window cut around the robot from a cluttered map, so
-    obstacles cross the window edge and may lie just outside it (they still shape l inside)."""
-    car, rng = draw.dynamics(CarParams), draw.rng
-    n_blobs, n_walls = draw.integer("n_blobs"), draw.integer("n_walls")
-    shapes, roles, centers, radii, thick, lengths = [], [], [], [], [], []
-    for _ in range(200 * n_blobs):
-        if len(centers) == n_blobs:
-            break
-        r = draw.uniform("radius")
-        c = rng.uniform(-WINDOW_MAP_HALF, WINDOW_MAP_HALF, 2)
-        if math.hypot(*c) >= r + ROBOT_CLEARANCE and all(math.dist(c, o) >= r + q + 0.3
-                                                           for o, q in zip(centers, radii, strict=True)):
-            shapes.append(random_smooth_shape(rng, c, (ROUNDNESS * r, r)))
-            centers.append(c.tolist())
-            radii.append(r)
-    if len(centers) < n_blobs:
-        raise ValueError(f"could not place {n_blobs} obstacles")
-    for _ in range(n_walls):
-        t, length = draw.uniform("wall_thickness"), draw.uniform("wall_length")
-        side = float(rng.choice([-1.0, 1.0]))
-        fixed = side * float(rng.uniform(ROBOT_CLEARANCE + t / 2, WINDOW_MAP_HALF - 1.0))
-        start = float(rng.uniform(-WINDOW_MAP_HALF, WINDOW_MAP_HALF - length))
-        a, b = (start, fixed), (start + length, fixed)
-        if rng.integers(2):
-            a, b = a[::-1], b[::-1]
-        shapes.append(_segment_box(a, b, t))
-        thick.append(t)
-        lengths.append(length)
-    roles = ["map"] * len(shapes)
-    params = {"n_blobs": n_blobs, "n_walls": n_walls, "radius": radii, "centers": centers, "wall_thickness": thick,
-              "wall_length": lengths, "shape_roles": roles, **car}
-    return shapes, params
-
-
 @dataclasses.dataclass(frozen=True)
 class FamilySpec:
     """A family: its sampling ranges (uniform; integers inclusive), categorical choices and builder."""
@@ -490,7 +314,7 @@ FAMILIES: dict[str, FamilySpec] = {
             "door_widths": (1.0, 1.6),
             "clutter_sizes": (0.3, 0.7),
         },
-        _build_indoor,
+        build_indoor,
     ),
     "velocity": FamilySpec(
         "velocity",
@@ -509,7 +333,16 @@ FAMILIES: dict[str, FamilySpec] = {
         "car",
         {"n_blobs": (5, 12), "n_walls": (0, 2), "radius": (0.4, 1.2), "wall_thickness": (0.15, 0.3),
          "wall_length": (3.0, 10.0)},
-        _build_windows,
+        build_windows,
+    ),
+    "plans": FamilySpec(
+        "plans",
+        "car",
+        {"wall_thickness": (0.05, 0.4), "room_size": (3.0, 8.0), "door_width": (1.0, 2.5),
+         "corridor_width": (1.0, 4.0), "n_branches": (1, 5), "aisle_width": (1.0, 3.0), "shelf_depth": (0.5, 1.5),
+         "n_clutter": (0, 8), "clutter_size": (0.15, 0.6), "n_unknown": (0, 2)},
+        build_plans,
+        choices={"style": PLAN_STYLES},
     ),
 }
 _FAMILY_INDEX = {name: i for i, name in enumerate(FAMILIES)}
