@@ -196,11 +196,19 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         print(Path(table).read_text())
         return 0
     figures = Path(args.out) / "figures" if args.figure else None
-    for row in evaluation.evaluate(args.model, args.data, train_limit=args.train_limit, figures=figures,
-                                   unconverged=args.allow_unconverged):
+    rows = evaluation.evaluate(args.model, args.data, train_limit=args.train_limit, figures=figures,
+                               unconverged=args.allow_unconverged)
+    for row in rows:
         table = evaluation.record(row, args.out)
         print(" | ".join(f"{k}={v}" for k, v in row.items()))
     print(f"updated {table}")
+    if args.into_card:  # the first folder's test metrics headline the card; every folder's row is kept
+        keys = ("test_rel_l2", "test_iou", "test_false_safe", "infer_ms", "checkpoint_MB")
+        card = checkpoint.load_card(args.model)
+        metrics = {**card.get("metrics", {}), **{k: rows[0][k] for k in keys}, "headline": rows[0]["experiment"],
+                   "by_dataset": {r["experiment"]: {k: r[k] for k in keys} for r in rows}}
+        checkpoint.update_card(args.model, {"metrics": metrics})
+        print(f"wrote metrics into {args.model}.json")
     return 0
 
 
@@ -272,7 +280,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                                    filters=args.filters.split(",") if args.filters else None,
                                    progress=(lambda m: None) if args.quiet else print,
                                    unconverged=args.allow_unconverged, inflation_at=args.inflation_at,
-                                   refine=args.refine, robot=args.robot,
+                                   refine=args.refine, robot=args.robot, worlds=args.worlds,
                                    **({"decay_rate": args.decay_rate} if args.decay_rate else {}))
     out = Path(args.out)
     command = "hjrno " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("hjrno") else "hjrno simulate ..."
@@ -400,6 +408,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data", default=None, help="dataset folder (default: the one in the model card)")
     p.add_argument("--out", default="out/bench", help="results folder (default: out/bench)")
     p.add_argument("--train-limit", type=int, default=20, help="training samples scored (default 20)")
+    p.add_argument("--into-card", action="store_true", help="also write the test metrics into the model card "
+                   "(the first --data folder's as the headline)")
     p.add_argument("--figure", action="store_true", help="also write a ground truth | prediction | error PNG")
     p.add_argument("--superres", type=int, default=0, help="zero-shot super-resolution test at this factor")
     p.add_argument("--samples", type=int, default=3, help="test samples solved at the fine grid (--superres)")
@@ -459,6 +469,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "many simulated s of the solver warm-started from it (brt_node's refine_horizon), s")
     p.add_argument("--robot", default=None, choices=["turtlebot3"], help="drive this robot instead of the worlds' "
                    "car: worlds, margins and episodes at its size, a_max from each world's a_max/(kappa v^2)")
+    p.add_argument("--worlds", type=int, default=None, help="only the first N held-out worlds (episodes spread "
+                   "over them)")
     p.add_argument("--careless", action="store_true", help="also reversing (if the robot can) and spin-in-place "
                    "drivers, 1 episode in 10 each")
     p.add_argument("--scenes", choices=["product"], default=None,

@@ -1,7 +1,7 @@
 """brt_node over real DDS: a driver node publishes map/odom/commands and watches the outputs.
 
 Both nodes share one rclpy context on a private ROS domain (from the pid) and one
-SingleThreadedExecutor on a background thread.  The model is the bundled ``models/default`` if
+SingleThreadedExecutor on a background thread.  The model is the bundled ``models/paper_cnn`` if
 present, else a tiny FNO trained here on the ``ci`` dataset (~20 s): with that one V is only
 checked through what holds for any model (V ≤ V0, the filter's mapping), and the braking /
 turning comparison with a ground-truth solve runs with the bundled model only.
@@ -76,7 +76,7 @@ def map_msg(occ: np.ndarray, stamp_sec: int = 1, resolution: float = RES, data=N
 
 @pytest.fixture(scope="session")
 def model_stem(tmp_path_factory) -> Path:
-    bundled = ROOT / "models" / "default"
+    bundled = ROOT / "models" / "paper_cnn"
     if checkpoint.paths(bundled)[1].is_file():
         return bundled
     tmp = tmp_path_factory.mktemp("brt_model")
@@ -332,7 +332,7 @@ def test_driving_into_wall_is_overridden(ros):
     is not what the true value function asks for; at v_max the feasible u1 is 0).
     """
     driver, node = ros
-    bundled = Path(node.model_stem) == ROOT / "models" / "default"
+    bundled = Path(node.model_stem) == ROOT / "models" / "paper_cnn"
     theta, v = 0.3, 1.0
     st = settle(driver, *NEAR_WALL, v, theta)
     eps = st["epsilon"]
@@ -448,7 +448,7 @@ def test_signed_distance_runs_in_the_inference_thread_not_the_executor(ros, monk
 
 def test_bypass_passes_commands_and_reenable_filters(ros):
     driver, node = ros
-    bundled = Path(node.model_stem) == ROOT / "models" / "default"
+    bundled = Path(node.model_stem) == ROOT / "models" / "paper_cnn"
     st = settle(driver, *NEAR_WALL, 1.0, 0.3)
     eps = st["epsilon"]
     if not bundled:
@@ -532,13 +532,14 @@ def test_missing_model_exits_nonzero_with_one_line():
 
 
 def test_bundled_models_resolve_by_name():
-    """model_path may name a bundled model: the default loads with each member in its two frames and the ε
-    calibrated that way, ``v5`` is the same weights with one frame per member and its own ε; an unknown
-    name is one clear error."""
+    """model_path may name a bundled model ('' is ``default``): ``paper_cnn`` loads with each member in its two
+    frames and the ε calibrated that way, ``v5`` is the same weights with one frame per member and its own ε; an
+    unknown name is one clear error."""
     from hjrno_ros.ros.model_files import resolve_model
 
-    stem = resolve_model("")
-    assert stem == ROOT / "models" / "default" and resolve_model(str(stem)) == stem
+    assert resolve_model("") == ROOT / "models" / "default"
+    stem = resolve_model("paper_cnn")
+    assert stem == ROOT / "models" / "paper_cnn" and resolve_model(str(stem)) == stem
     model, card = checkpoint.load_model(stem)
     assert [m.elements for m in model.members] == [(0, 5), (1, 6), (3, 4)]
     assert card["calibration"]["member_frames"] == card["member_frames"] and card["epsilon"] > 0.1
@@ -559,7 +560,7 @@ def test_heading_across_pi_reads_the_stencil_not_its_clamped_edge():
     from hjrno_ros.ros.inputs import RobotState
     from hjrno_ros.ros.value_worker import table_state
 
-    vf = LearnedValueFunction(ROOT / "models" / "default", device="cpu")
+    vf = LearnedValueFunction(ROOT / "models" / "paper_cnn", device="cpu")
     center, theta = (0.0, 0.0), math.pi - 0.05
     xy = vf.window_points(center)
     v0 = (np.abs(xy[..., 0] + 1.5) - 0.3).astype(np.float32)  # a wall 1.5 m behind the heading π
@@ -590,7 +591,7 @@ def test_refined_epsilon_comes_from_the_parameter_then_the_card_then_epsilon():
     from hjrno_ros.core.model_card import ModelCard
 
     base = FilterSettings(epsilon=0.2, mode="blend")
-    plain = dataclasses.replace(ModelCard.load(ROOT / "models" / "default"), epsilon=0.2, refine_epsilon=None,
+    plain = dataclasses.replace(ModelCard.load(ROOT / "models" / "paper_cnn"), epsilon=0.2, refine_epsilon=None,
                                 refine_horizon=None)
     card = dataclasses.replace(plain, refine_epsilon=0.12, refine_horizon=16.0)
     assert refined_filter_settings(card, base, {"refine_epsilon": 0.3}) == (FilterSettings(0.3, "blend"), 0.0)
@@ -621,7 +622,7 @@ def test_refinement_takes_over_the_filter_for_its_map_only(model_stem, tmp_path)
         assert driver.set_param("epsilon", 0.7)[0]  # V <= V0 = 0.6 m: a sure intervention
         out = driver.command(1.0, 0.0)
         assert out is not None and (out.linear.x, out.angular.z) != (1.0, 0.0)
-        if model_stem == ROOT / "models" / "default":
+        if model_stem == ROOT / "models" / "paper_cnn":
             assert refined.table.gradient(state)[0][3] > 1e-2 and out.angular.z > 0, out  # turn away
         driver.pose = (*NEAR_WALL, 3.0)  # facing away from the wall: 0 < V <= 0.6 m
         assert wait_for(lambda: abs((driver.status.get("value_grid") or {}).get("theta", 0) - 3.0) < 0.05, 5.0)

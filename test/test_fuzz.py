@@ -371,6 +371,9 @@ def test_filter_command_is_finite_and_within_the_limits():
             seen["stop"] += 1
             continue
         assert within_limits(p, state[2], d.linear, d.angular, settings.dt), f"{where}: {d}"
+        if p.d0 == 0:  # a robot that rests safely: never faster than the (clipped) nominal, never against it
+            asked = min(max(linear, p.v_min), p.v_max)
+            assert min(asked, 0.0) <= d.linear <= max(asked, 0.0), f"{where}: {d}"
         assert d.clipped == (not within_limits(p, state[2], linear, angular, settings.dt, exact=True)), where
         if not d.intervened and not d.clipped:
             assert (d.linear, d.angular) == (linear, angular), where
@@ -591,7 +594,7 @@ CARD_VALUES = (None, "x", "", True, False, [], {}, math.nan, math.inf, -math.inf
 
 
 def test_model_card_mutations_load_or_raise_one_line_naming_a_field():
-    """ModelCard.from_dict on random mutations of models/default.json (deleted fields, wrong types, NaN, Inf,
+    """ModelCard.from_dict on random mutations of models/paper_cnn.json (deleted fields, wrong types, NaN, Inf,
     huge numbers) either loads a card whose numbers are finite, or raises one ValueError line naming the
     mutated field (or the part of the card it breaks); never another exception."""
     base = json.loads((ROOT / "models" / "default.json").read_text())
@@ -653,7 +656,7 @@ def test_dds_fuzz_node_survives_and_never_publishes_beyond_the_limits():
     from hjrno_ros.tools.node_process import brt_node_process
 
     domain = 1 + (os.getpid() + 60) % 100
-    model = ROOT / "models" / "default"
+    model = ROOT / "models" / "paper_cnn"
     with brt_node_process(domain, {"pose_topic": "amcl_pose"}, model) as (proc, log_tail):
         result = fuzz_drive(domain, DDS_SECONDS, seed=40, alive=lambda: proc.poll() is None)
         alive = proc.poll() is None

@@ -24,7 +24,7 @@ from hjrno_ros.truth import refinement as mr
 from hjrno_ros.truth.systems import DynamicDubinsCar
 
 ROOT = Path(__file__).resolve().parents[1]
-MODEL = ROOT / "models" / "default"
+MODEL = ROOT / "models" / "paper_cnn"
 
 
 @pytest.fixture(scope="module")

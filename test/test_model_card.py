@@ -14,7 +14,7 @@ from hjrno_ros.core.model_card import DEFAULT_EPSILON, ModelCard, load_card
 from hjrno_ros.learning import checkpoint
 
 ROOT = Path(__file__).resolve().parents[1]
-BUNDLED = ("default", "v5")
+BUNDLED = ("paper_cnn", "v5")
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +57,7 @@ def test_the_bundled_cards_load(name):
     assert card.inputs["channels"] == ["v0", "v", "cos_theta", "sin_theta"] and card.config["in_channels"] == 4
     assert 0.1 < card.epsilon < 0.3 and card.margin() == card.epsilon and card.parameters == 790131
     assert card.data == load_card(ROOT / "models" / name) and card.training and card.dataset["folders"]
-    if name == "default":
+    if name == "paper_cnn":
         assert card.member_frames == [[0, 5], [1, 6], [3, 4]] and card.refine_horizon == 16.0
         assert card.refined_margin(16.0) == card.refine_epsilon != card.epsilon == card.refined_margin(15.0)
     else:
@@ -67,7 +67,7 @@ def test_the_bundled_cards_load(name):
 
 def test_reading_a_card_imports_no_torch_and_held_out_no_calibration():
     code = ("import sys; from hjrno_ros.core.model_card import ModelCard; "
-            f"ModelCard.load({str(ROOT / 'models' / 'default')!r}); assert 'torch' not in sys.modules; "
+            f"ModelCard.load({str(ROOT / 'models' / 'paper_cnn')!r}); assert 'torch' not in sys.modules; "
             "import hjrno_ros.datasets.held_out; assert 'hjrno_ros.learning.calibration' not in sys.modules; "
             "import hjrno_ros.learning.operators.ensemble as e; assert sorted(e.MODELS) == ['cnn', 'fno', 'tno']")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)

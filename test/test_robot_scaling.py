@@ -15,6 +15,7 @@ from test_brt_node import DOMAIN, FAR, NEAR_WALL, driver_and_node, map_msg, mode
 
 from hjrno_ros.core.dynamics import CarParams  # noqa: E402
 from hjrno_ros.core.model_card import ModelCard  # noqa: E402
+from hjrno_ros.core.safety_filter import sampling_margin  # noqa: E402
 from hjrno_ros.core.similarity import Dimensionless  # noqa: E402
 from hjrno_ros.ros import parameters  # noqa: E402
 from hjrno_ros.ros.robot import ScaledValueFunction, covered_scaling, robot_params  # noqa: E402
@@ -77,7 +78,8 @@ def test_the_node_filters_a_smaller_robot_on_a_smaller_map(model_stem, ros):  # 
     with driver_and_node(model_stem, DOMAIN + 46, publish_map=False, **SMALL) as (small, node):
         small.map_pub.publish(small_map)
         margin = ModelCard.load(model_stem).margin()
-        assert node.vf.params.kappa_max == 4.0 and node.settings.epsilon == pytest.approx(S * margin)
+        sampled = sampling_margin(node.vf.params, node.settings.dt)
+        assert node.vf.params.kappa_max == 4.0 and node.settings.epsilon == pytest.approx(S * margin + sampled)
         for name, (x, y, v, theta) in (("far", (*FAR, 0.5, 0.0)), ("near", (*NEAR_WALL, 1.0, 0.3))):
             value = settle(small, S * x, S * y, 0.5 * v, theta, timeout=20.0)["value"]
             assert value == pytest.approx(S * reference[name], rel=2e-3, abs=2e-3), (name, value, reference)

@@ -24,10 +24,14 @@ class GridSpec:
     periodic: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "lo", tuple(float(v) for v in self.lo))
-        object.__setattr__(self, "hi", tuple(float(v) for v in self.hi))
-        object.__setattr__(self, "shape", tuple(int(n) for n in self.shape))
-        object.__setattr__(self, "periodic", tuple(int(i) for i in self.periodic))
+        try:
+            object.__setattr__(self, "lo", tuple(float(v) for v in self.lo))
+            object.__setattr__(self, "hi", tuple(float(v) for v in self.hi))
+            object.__setattr__(self, "shape", tuple(int(n) for n in self.shape))
+            object.__setattr__(self, "periodic", tuple(int(i) for i in self.periodic))
+        except (TypeError, ValueError, OverflowError):  # e.g. a periodic axis of inf in an edited card
+            raise ValueError(f"grid lo, hi need numbers, shape and periodic whole numbers, got {self.lo}, {self.hi}, "
+                             f"{self.shape}, {self.periodic}") from None
         n = len(self.shape)
         if not (len(self.lo) == len(self.hi) == n) or n == 0:
             raise ValueError(f"grid lo, hi and shape need one entry per axis, got {self.lo}, {self.hi}, {self.shape}")

@@ -49,10 +49,11 @@ class SimRobot(Node):
     def __init__(self, shapes: list, params: CarParams, occupancy: np.ndarray, resolution: float,
                  origin: tuple[float, float], start: np.ndarray, goals: np.ndarray, seed: int = 0, context=None,
                  direct: bool = False, odom_rate: float = 50.0, cmd_rate: float = 20.0, cmd_timeout: float = 0.25,
-                 control_period: float = 0.05) -> None:
-        """``direct``: no filter in the loop, the robot executes its own nominal commands."""
+                 control_period: float = 0.05, footprint: float = 0.0) -> None:
+        """``direct``: no filter in the loop, the robot executes its own nominal commands; ``footprint``: the
+        robot's radius, m (it collides when its body touches an obstacle)."""
         super().__init__("sim_robot", context=context)
-        self.shapes, self.params, self.direct = shapes, params, direct
+        self.shapes, self.params, self.direct, self.footprint = shapes, params, direct, footprint
         self.x = np.asarray(start, float).reshape(1, 4).copy()
         self.goals, self.goal_index = np.asarray(goals, float), 0
         self.rng = np.random.default_rng(seed)
@@ -97,8 +98,8 @@ class SimRobot(Node):
         self.odom_pub.publish(odometry_message(x, y, theta, v, "map", self.get_clock().now().to_msg()))
 
     def event(self, xy: np.ndarray) -> str | None:
-        """"collision" inside an obstacle, else None."""
-        return "collision" if union_sdf(self.shapes, np.asarray(xy, float)[None])[0] <= 0 else None
+        """"collision" when the body touches an obstacle, else None."""
+        return "collision" if union_sdf(self.shapes, np.asarray(xy, float)[None])[0] <= self.footprint else None
 
     def _ended(self) -> bool:
         return self.log.collided_at is not None

@@ -116,7 +116,8 @@ def make_filter(choice: FilterChoice, world: World, tables: dict[str, ValueTable
         return lambda s, nominal: stop_zone_filter(stop, world.clearance, s, nominal)
     table = tables[choice.source]
     eps = choice.epsilon * world.scale + sampling_margin(world.params, dt)  # as brt_node composes its default ε
-    settings = FilterSettings(epsilon=eps, mode=choice.mode, dt=dt, decay_rate=decay_rate)
+    settings = FilterSettings(epsilon=eps, mode=choice.mode, dt=dt, decay_rate=decay_rate,
+                              blend_width=FilterSettings.blend_width * world.scale)
     return lambda s, nominal: filter_batch(world.params, settings, s, *table.value_and_gradient(s), nominal)
 
 
@@ -124,14 +125,15 @@ def run_study(folders: list[str], models: dict[str, str], episodes: int = 500, s
               truth_epsilon: float = DEFAULT_MARGIN, part: str = "fresh", settings: EpisodeSettings = EpisodeSettings(),
               stop: StopZoneSettings = StopZoneSettings(), filters: list[str] | None = None,
               progress=print, unconverged: bool = False, decay_rate: float = FilterSettings.decay_rate,
-              inflation_at: str = "input", refine: float = 0.0, robot: str | None = None) -> dict:
+              inflation_at: str = "input", refine: float = 0.0, robot: str | None = None,
+              worlds: int | None = None) -> dict:
     """Run every filter over ≥ ``episodes`` episodes spread evenly over the held-out worlds
     (``inflation_at``: how the learned maps meet the datasets' inflation, ``held_out.INFLATION_AT``).
     ``refine`` > 0 adds per model a filter on its table refined by ``refine`` simulated s of the solver
     warm-started from it (what brt_node's ``refine_horizon`` does), with the card's ε for that table
     (:meth:`ModelCard.refined_margin`).  ``robot``: drive a :data:`ROBOTS` robot instead of the worlds' car (the
-    worlds, margins and episode lengths at its size)."""
-    solved = [node_inflated(s) for s in held_out.load(folders, part, unconverged)]
+    worlds, margins and episode lengths at its size); ``worlds``: only the first this many held-out worlds."""
+    solved = [node_inflated(s) for s in held_out.load(folders, part, unconverged)][:worlds]
     if not solved:
         raise ValueError(f"no converged held-out scenarios in {folders} ({part})")
     usable = [closed_loop.has_safe_states(s.grid, s.value, settings) for s in solved]

@@ -122,10 +122,11 @@ def closed_loop_figure(path: str | Path, solved, traces: dict, rows: list[dict])
 
 
 def demo_animation(out: Path, occupancy: np.ndarray, resolution: float, log, goals: np.ndarray,
-                   gif: bool = True, view: float = 7.0, frame_s: float = 0.5) -> list[Path]:
+                   gif: bool = True, view: float = 7.0, frame_s: float = 0.5, footprint: float = 0.1) -> list[Path]:
     """demo.png (whole run) and demo.gif (one frame per ``frame_s``): obstacles, the node's latest BRT
     slice (red: V ≤ 0 at the robot's speed and heading), the path so far (orange where the filter
-    intervened), the robot and its goals; the view is [-view, view]²."""
+    intervened), the robot as a disk of radius ``footprint`` (m, to the map's scale) and its goals; the view
+    is [-view, view]²."""
     from matplotlib import animation
 
     size = occupancy.shape[0] * resolution
@@ -137,7 +138,7 @@ def demo_animation(out: Path, occupancy: np.ndarray, resolution: float, log, goa
     ax.plot(goals[:, 0], goals[:, 1], "x", color="#2a9d2a", ms=7)
     path, = ax.plot([], [], color="#1f5fbf", lw=1.2)
     over = ax.scatter([], [], s=4, color="#ff8800")
-    robot, = ax.plot([], [], "o", color="k", ms=5)
+    robot = ax.add_patch(plt.Circle((0.0, 0.0), footprint, color="k", alpha=0.8, visible=False))
     heading, = ax.plot([], [], "-", color="k", lw=1.5)
     ax.set_xlim(-view, view)
     ax.set_ylim(-view, view)
@@ -156,8 +157,8 @@ def demo_animation(out: Path, occupancy: np.ndarray, resolution: float, log, goa
             path.set_data(s[:, 1], s[:, 2])
             over.set_offsets(s[s[:, 5] > 0][:, 1:3] if (s[:, 5] > 0).any() else np.zeros((0, 2)))
             x, y, _, th = s[-1, 1:5]
-            robot.set_data([x], [y])
-            heading.set_data([x, x + 0.6 * np.cos(th)], [y, y + 0.6 * np.sin(th)])
+            robot.set(center=(x, y), visible=True)
+            heading.set_data([x, x + 2.4 * footprint * np.cos(th)], [y, y + 2.4 * footprint * np.sin(th)])
         crash = log.collided_at is not None and t >= log.collided_at
         title.set_text(f"t = {t:4.1f} s" + ("  COLLISION" if crash else "") + "  (red: BRT slice, orange: filtered)")
 

@@ -25,6 +25,7 @@ from hjrno_ros.truth.scenarios import random_smooth_shape
 MAP_SIZE = 24.0  # m, square, centred on the origin
 RESOLUTION = 0.05  # m
 ARENA = 6.0  # m: obstacles, goals and the start lie in [-ARENA, ARENA]²: robot-centred 10 m windows stay in the map
+FOOTPRINT = 0.25  # m: the robot's radius (a base 0.5 m across), drawn to the map's scale and given to brt_node
 
 
 def demo_world(seed: int = 0, obstacles: int = 6) -> tuple[list, np.ndarray, np.ndarray, np.ndarray]:
@@ -73,10 +74,11 @@ def run(out: Path, seconds: float = 40.0, seed: int = 0, model: str | None = Non
     domain = free_domain()
     robot = {"shapes": shapes, "params": params, "occupancy": occupancy, "resolution": RESOLUTION,
              "origin": (-MAP_SIZE / 2, -MAP_SIZE / 2), "start": start, "goals": goals, "seed": seed,
-             "direct": not use_filter}
+             "direct": not use_filter, "footprint": FOOTPRINT}
     started = time.monotonic()
     if use_filter:
-        with brt_node_process(domain, {"enable_stamped_cmd_vel": True, "model_path": str(stem)}) as (proc, log_tail):
+        node_params = {"enable_stamped_cmd_vel": True, "model_path": str(stem), "footprint_radius": FOOTPRINT}
+        with brt_node_process(domain, node_params) as (proc, log_tail):
             def ready(log) -> bool:
                 if proc.poll() is not None:
                     raise RuntimeError(f"brt_node exited with code {proc.returncode}: {log_tail()}")
@@ -89,7 +91,7 @@ def run(out: Path, seconds: float = 40.0, seed: int = 0, model: str | None = Non
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
     from hjrno_ros.studies.plotting import demo_animation
 
-    figures = demo_animation(out, occupancy, RESOLUTION, log, goals, gif=gif)
+    figures = demo_animation(out, occupancy, RESOLUTION, log, goals, gif=gif, footprint=FOOTPRINT)
     print("\n".join(f"{k:<24} {v}" for k, v in summary.items()))
     print("wrote " + ", ".join(str(p) for p in [out / "summary.json", *figures]))
     return 1 if summary["collided"] else 0
@@ -107,7 +109,8 @@ def summarize(log, shapes: list, use_filter: bool, stem: Path, seed: int, wall_s
         "collision_time_s": None if log.collided_at is None else round(log.collided_at, 2),
         "goals_reached": len(log.goals),
         "distance_m": round(float(np.linalg.norm(np.diff(states[:, :2], axis=0), axis=-1).sum()), 2),
-        "min_clearance_m": round(float(union_sdf(shapes, states[:, :2]).min()), 3) if len(states) else None,
+        "footprint_m": FOOTPRINT,
+        "min_clearance_m": round(float(union_sdf(shapes, states[:, :2]).min()) - FOOTPRINT, 3) if len(states) else None,
         "commands": log.commands,
         "interventions": log.interventions,
         "intervention_rate": round(log.interventions / max(log.commands, 1), 3),
