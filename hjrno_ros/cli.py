@@ -202,13 +202,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         table = evaluation.record(row, args.out)
         print(" | ".join(f"{k}={v}" for k, v in row.items()))
     print(f"updated {table}")
-    if args.into_card:  # the first folder's test metrics headline the card; every folder's row is kept
-        keys = ("test_rel_l2", "test_iou", "test_false_safe", "infer_ms", "checkpoint_MB")
-        card = checkpoint.load_card(args.model)
-        metrics = {**card.get("metrics", {}), **{k: rows[0][k] for k in keys}, "headline": rows[0]["experiment"],
-                   "by_dataset": {r["experiment"]: {k: r[k] for k in keys} for r in rows}}
-        checkpoint.update_card(args.model, {"metrics": metrics})
-        print(f"wrote metrics into {args.model}.json")
+    if args.into_card:
+        print(f"wrote metrics into {evaluation.record_in_card(args.model, rows)}")
     return 0
 
 

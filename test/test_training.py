@@ -158,6 +158,13 @@ def test_evaluation_reports_paper_columns(trained, ci_data, tmp_path):
     table = evaluation.record(row, tmp_path)
     assert "test_rel_l2" in table.read_text()
     assert list((tmp_path / "fig").glob("*.png"))
+    from conftest import copy_model
+
+    stem = copy_model(out, tmp_path)
+    evaluation.record_in_card(stem, rows)  # the card keeps its metrics and gains the evaluation's
+    metrics = checkpoint.load_typed(stem)[1].metrics
+    assert metrics["test_rel_l2"] == row["test_rel_l2"] and metrics["headline"] == row["experiment"]
+    assert "train_rel_l2_slices" in metrics and metrics["by_dataset"][row["experiment"]]["test_iou"] == row["test_iou"]
 
 
 def test_unconverged_samples_only_on_request(trained, ci_data, tmp_path):

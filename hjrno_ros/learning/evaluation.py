@@ -159,6 +159,18 @@ def averaged(model) -> bool:
     return isinstance(model, SymmetryAverage)
 
 
+CARD_METRICS = ("test_rel_l2", "test_iou", "test_false_safe", "infer_ms", "checkpoint_MB")
+
+
+def record_in_card(stem: str | Path, rows: list[dict]) -> Path:
+    """Write evaluation rows into the model card's ``metrics``: the first row's as the headline, every row's
+    under ``by_dataset``; the card's other metrics stay."""
+    card = checkpoint.load_card(stem)
+    metrics = {**card.get("metrics", {}), **{k: rows[0][k] for k in CARD_METRICS}, "headline": rows[0]["experiment"],
+               "by_dataset": {r["experiment"]: {k: r[k] for k in CARD_METRICS} for r in rows}}
+    return checkpoint.update_card(stem, {"metrics": metrics})
+
+
 def record(row: dict, out: str | Path) -> Path:
     """Add or replace the row for (experiment, model) and re-render evaluation.md/.csv."""
     out = Path(out)
