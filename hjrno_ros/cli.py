@@ -256,12 +256,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     """Closed-loop comparison of safety filters; writes closed_loop.{md,csv,json,png} (or, with --scenes, the
     product robot's scenes: scenes.md)."""
     if args.scenes:
-        from hjrno_ros.core.dynamics import CarParams
         from hjrno_ros.studies import product_scenes
 
-        text = product_scenes.run_all(CarParams.product(v_min=-0.5), args.out)
-        print(text)
-        return 0 if "| none |" in text and text.count("| none |") == len(product_scenes.SCENES) * 3 else 1
+        return product_scenes.main(args.out)
     import torch
 
     from hjrno_ros.studies import filter_study, plotting
@@ -294,20 +291,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    if args.what == "depot":
-        from hjrno_ros.tools import depot_check
-
-        return depot_check.run(Path(args.out), episodes=args.episodes,
-                               seconds=12.0 if args.seconds is None else args.seconds, model=args.model)
-    if args.what == "fuzz":
-        from hjrno_ros.tools import fuzz_bench
-
-        return fuzz_bench.run(Path(args.out), seconds=fuzz_bench.SOAK_S if args.seconds is None else args.seconds,
-                              model=Path(args.model) if args.model else None)
     from hjrno_ros.tools import benchmarks
 
-    only = tuple(args.only.split(",")) if args.only else ()
-    return benchmarks.run(args.what, Path(args.out), quick=args.quick, only=only, model=args.model)
+    return benchmarks.dispatch(args.what, Path(args.out), quick=args.quick, only=args.only, model=args.model,
+                               episodes=args.episodes, seconds=args.seconds)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -205,3 +205,18 @@ def write_table(out: Path, stem: str, title: str, rows: list[dict], note: str) -
     (out / f"{stem}.json").write_text(json.dumps({"machine": machine(), "note": note, "rows": rows}, indent=1))
     print(f"wrote {out / (stem + '.md')}")
     return 0
+
+
+def dispatch(what: str, out: Path, quick: bool = False, only: str | None = None, model: str | None = None,
+             episodes: int = 200, seconds: float | None = None) -> int:
+    """``hjrno bench WHAT``: the depot check and the fuzz soak (each its own module), or :func:`run`'s benches."""
+    if what == "depot":
+        from hjrno_ros.tools import depot_check
+
+        return depot_check.run(out, episodes=episodes, seconds=12.0 if seconds is None else seconds, model=model)
+    if what == "fuzz":
+        from hjrno_ros.tools import fuzz_bench
+
+        return fuzz_bench.run(out, seconds=fuzz_bench.SOAK_S if seconds is None else seconds,
+                              model=Path(model) if model else None)
+    return run(what, out, quick=quick, only=tuple(only.split(",")) if only else (), model=model)
