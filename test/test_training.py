@@ -188,6 +188,7 @@ def test_unconverged_samples_only_on_request(trained, ci_data, tmp_path):
     row = evaluation.evaluate(out, data, unconverged=True)[0]
     assert row["n_train/n_test"].endswith(f"/{n_test} ({n_test} unconverged)")
     assert row["test_rel_l2_converged"] is None  # no converged test sample to average
+    assert row["test_rms_error"] > 0 and 0 < row["test_edge_error_share"] < 1
     with h5py.File(data / "test.h5", "r+") as f:  # now only the first test sample converged
         f["converged"][0] = True
     converged_only = evaluation.evaluate(out, data)[0]
@@ -269,7 +270,14 @@ def test_metrics_are_right_on_known_tables():
     truth = np.array([-1.0, -1.0, 1.0, 1.0])
     m = evaluation.table_metrics(np.array([-1.0, 1.0, 1.0, -1.0]), truth)
     assert m["iou"] == pytest.approx(1 / 3) and m["false_safe"] == pytest.approx(0.5)
-    assert evaluation.table_metrics(truth, truth) == {"rel_l2": 0.0, "iou": 1.0, "false_safe": 0.0}
+    assert m["rms_error"] == pytest.approx(np.sqrt(2.0))
+    assert evaluation.table_metrics(truth, truth) == {"rel_l2": 0.0, "rms_error": 0.0, "iou": 1.0, "false_safe": 0.0}
+    table = np.zeros((6, 6, 2))
+    error = table.copy()
+    error[0, 0], error[3, 3] = 1.0, 1.0  # one unit of error on the edge, one inside
+    assert evaluation.edge_error_share(error, table) == pytest.approx(0.5)
+    error[3, 3] = 0.0
+    assert evaluation.edge_error_share(error, table) == 1.0 and evaluation.edge_error_share(table, table) == 0.0
 
 
 def test_learned_value_function_gives_value_and_gradient(trained):

@@ -109,7 +109,20 @@ def within_nominal_speed(params: CarParams, twist: np.ndarray, nominal: np.ndarr
 def safe_twist(params: CarParams, state: np.ndarray, grad: np.ndarray, dt: float) -> np.ndarray:
     """The optimal safe control at ``state`` (``(4,)`` or ``(n, 4)``) as (linear, angular) commands."""
     state = np.asarray(state, float)
-    return control_to_twist(params, state, car_optimal_control(params, state, np.asarray(grad, float)), dt)
+    twist = control_to_twist(params, state, car_optimal_control(params, state, np.asarray(grad, float)), dt)
+    return stops_at_rest(params, state, twist)
+
+
+def stops_at_rest(params: CarParams, states: np.ndarray, twist: np.ndarray) -> np.ndarray:
+    """For a robot that rests safely (d₀ = 0) the safe linear command stays between 0 and the present speed: it
+    brakes to rest, never through it.  Rest is the safest speed of this model (V(x, y, 0, θ) = l(x, y) ≥ V at any
+    other speed), but ∂V/∂v has a kink there, and a one-sided gradient of a reversing robot's table (stopped:
+    "brake" = back up) made the safe control creep backwards into a wall, one period at a time."""
+    if params.d0 > 0:
+        return twist
+    v = states[..., 2]
+    linear = np.clip(twist[..., 0], np.minimum(v, 0.0), np.maximum(v, 0.0))
+    return np.stack([linear, twist[..., 1]], -1)
 
 
 def nominal_weight(settings: FilterSettings, value: np.ndarray) -> np.ndarray:

@@ -52,14 +52,28 @@ def sample_params(spec: InputSpec, scenario) -> np.ndarray | None:
             if spec.param_ranges else None)
 
 
+EDGE_CELLS = 2  # the ring of the window where walls beyond its edge shape V unseen
+
+
 def table_metrics(pred: np.ndarray, truth: np.ndarray) -> dict:
+    """Relative L2, RMS error (the table's units: the same absolute error reads as a larger relative one where V
+    is small, in clutter), BRT IoU and false-safe rate of one table."""
     unsafe_t, unsafe_p = truth <= 0, pred <= 0
     union = np.sum(unsafe_t | unsafe_p)
     return {
         "rel_l2": float(np.linalg.norm(pred - truth) / max(np.linalg.norm(truth), 1e-12)),
+        "rms_error": float(np.sqrt(np.mean(np.square(pred - truth)))),
         "iou": float(np.sum(unsafe_t & unsafe_p) / union) if union else 1.0,
         "false_safe": float(np.mean(~unsafe_p[unsafe_t])) if unsafe_t.any() else 0.0,
     }
+
+
+def edge_error_share(pred: np.ndarray, truth: np.ndarray, cells: int = EDGE_CELLS) -> float:
+    """Share of the squared error of a table (x, y first) within ``cells`` of the window's edge."""
+    err = np.square(pred - truth)
+    inner = err[cells:-cells, cells:-cells].sum()
+    total = err.sum()
+    return float((total - inner) / total) if total > 0 else 0.0
 
 
 def split_metrics(model, spec: InputSpec, split, limit: int | None = None) -> dict:
@@ -70,7 +84,8 @@ def split_metrics(model, spec: InputSpec, split, limit: int | None = None) -> di
     rows = []
     for i in range(n):
         params = sample_params(spec, split.scenarios[i])
-        rows.append(table_metrics(predict_table(model, spec, split.grid, split.target[i], params), split.value[i]))
+        pred = predict_table(model, spec, split.grid, split.target[i], params)
+        rows.append(table_metrics(pred, split.value[i]) | {"edge_error_share": edge_error_share(pred, split.value[i])})
     converged = [r["rel_l2"] for r, ok in zip(rows, split.converged[:n], strict=True) if ok]
     return ({k: float(np.mean([r[k] for r in rows])) for k in rows[0]} | {"n": n}
             | {"rel_l2_converged": float(np.mean(converged)) if converged else math.nan})
@@ -133,6 +148,8 @@ def _evaluate_folder(model, card: ModelCard, stem: Path, data: Path, train_limit
         "test_rel_l2": round(te["rel_l2"], 4),
         "test_iou": round(te["iou"], 4),
         "test_false_safe": round(te["false_safe"], 4),
+        "test_rms_error": round(te["rms_error"], 4),
+        "test_edge_error_share": round(te["edge_error_share"], 2),
         **({"test_rel_l2_converged": _rounded(te["rel_l2_converged"])} if flagged else {}),
         "dataset_time_h": round(float(train.attrs["solve_wall_s"] + test.attrs["solve_wall_s"]) / 3600, 2),
         "train_time_min": round(card.training.get("wall_s", float("nan")) / 60, 1),
@@ -188,7 +205,9 @@ def record(row: dict, out: str | Path) -> Path:
     lines = ["# Operator evaluation", "",
              "Written by `hjrno evaluate`. Errors over whole value tables (all v, θ slices) of the test split; "
              "train error on up to `train_samples_scored` training samples. solve_s: mean ground-truth solve of "
-             "one sample on this machine; infer_ms: one 2D slice, batch 1, CPU; speedup = solve / one slice.", "",
+             "one sample on this machine; infer_ms: one 2D slice, batch 1, CPU; speedup = solve / one slice; "
+             "test_rms_error: RMS of V_pred − V∞ in the table's units; test_edge_error_share: the part of the squared "
+             f"error within {EDGE_CELLS} cells of the window's edge.", "",
              "| " + " | ".join(keys) + " |", "|" + " --- |" * len(keys)]
     lines += ["| " + " | ".join(str(r.get(k, "")) for k in keys) + " |" for r in rows]
     (out / "evaluation.md").write_text("\n".join(lines) + "\n")
