@@ -1,6 +1,7 @@
 """The product robot model's behaviour over real DDS (issue 41, part 5): brt_node filters with the HJ solver's
-table for the scenes' map (a solver card: no learned model, the refinement path started from the target), and
-a simulated base integrates the filtered command in real time with a disturbance ‖d‖ ≤ 0.1·|v|."""
+table for the scenes' map (a solver card: no learned model, the refinement path started from the target), or
+with the bundled default (forward speeds, read by symmetry for this reversing base), and a simulated base
+integrates the filtered command in real time with a disturbance ‖d‖ ≤ 0.1·|v|."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
-from test_brt_node import DOMAIN, wait_for  # noqa: E402
+from test_brt_node import DOMAIN, ROOT, wait_for  # noqa: E402
 
 from hjrno_ros.core import safety_filter  # noqa: E402
 from hjrno_ros.core.dynamics import CarParams  # noqa: E402
@@ -35,8 +36,10 @@ def solver_card(tmp_path_factory):
     return stem
 
 
-@pytest.fixture(scope="module")
-def scene_node(solver_card):
+@pytest.fixture(scope="module", params=["solver", "default"])
+def scene_node(request, solver_card):
+    """brt_node over DDS for the scenes' base: on the solver card (the refinement path) or on the bundled default
+    (a forward-speed FNO serving this reversing base by symmetry)."""
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=DOMAIN + 45)
     base = SceneBase(context, ROBOT)
@@ -48,14 +51,16 @@ def scene_node(solver_card):
         executor.add_node(node)
     spinner = threading.Thread(target=executor.spin, daemon=True)
     spinner.start()
-    params = {"model_path": str(solver_card), "refine_horizon": 60.0, "refine_stage": 5.0, "refine_cpus": 1}
+    params = ({"model_path": str(solver_card), "refine_horizon": 60.0, "refine_stage": 5.0, "refine_cpus": 1}
+              if request.param == "solver" else {"model_path": str(ROOT / "models" / "default"), "v_min": ROBOT.v_min})
+    source = "refined" if request.param == "solver" else "operator"
     brt = BrtNode(context=context, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
     brt.start()
     executor.add_node(brt)
     try:
         base.place(product_scenes.SCENES[0].start)
-        assert wait_for(lambda: status.get("value_source") == "refined", 240.0), status
-        assert status["refinement"]["settled"], status
+        assert wait_for(lambda: status.get("value_source") == source, 240.0), status
+        assert source == "operator" or status["refinement"]["settled"], status
         yield base, status
     finally:
         executor.shutdown(timeout_sec=2.0)

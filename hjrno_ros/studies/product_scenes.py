@@ -1,7 +1,8 @@
 """The product model's behaviour scenes (issue 41): a robot that can stop and reverse, near walls.
 
 One 8 m × 6 m map holds every scene: a wall 1 m ahead of a robot at rest, a 1.6 m wide dead-end corridor,
-a wall behind a reversing robot, a robot beside a wall asked to spin, a robot inside a wall.  Each scene is
+a wall behind a reversing robot (moving, and at rest), a robot beside a wall asked to spin, a robot inside a
+wall.  Each scene is
 a start state (x, y, v, θ), a constant nominal command and a duration; :func:`judge` says what must hold.
 The scenes run offline against a table (:func:`simulate`) and over DDS with brt_node
 (:mod:`hjrno_ros.ros.scene_driver`).
@@ -45,6 +46,8 @@ SCENES = (
     Scene("dead_end", (1.2, 4.4, 0.3, 0.0), (0.3, 0.0), 14.0,
           "1.6 m dead-end corridor at 0.3 m/s: no collision, |v| never above the nominal's"),
     Scene("reverse", (1.2, 1.5, -0.3, 0.0), (-0.3, 0.0), 7.0, "reversing at 0.3 m/s toward a wall behind: braked"),
+    Scene("rest_reverse", (0.4, 2.0, 0.0, 0.0), (-0.3, 0.0), 3.0,
+          "at rest 0.2 m before a wall behind (inside the margin), nominal reverse: stays at rest"),
     Scene("spin", (5.5, 1.0, 0.0, 0.0), (0.0, 1.0), 3.0, "spin in place 0.5 m from a wall: no motion added"),
     Scene("inside_wall", (6.1, 2.0, 0.0, 0.0), (0.3, 0.5), 2.0, "inside a wall: never more speed than the nominal"),
 )
@@ -74,7 +77,7 @@ def judge(scene: Scene, states: np.ndarray, outputs: np.ndarray) -> list[str]:
     speed = abs(scene.nominal[0])
     if len(outputs) and np.abs(outputs[:, 0]).max() > max(speed, abs(scene.start[2])) + 1e-9:
         problems.append(f"output speed {np.abs(outputs[:, 0]).max():.3f} above the nominal's {speed}")
-    if scene.name in ("rest_stop", "spin"):
+    if scene.name in ("rest_stop", "spin", "rest_reverse"):
         moved = np.linalg.norm(states[:, :2] - states[0, :2], axis=-1).max()
         if moved > 1e-3 or np.abs(states[:, 2]).max() > 1e-6:
             problems.append(f"moved {moved:.4f} m from rest")
