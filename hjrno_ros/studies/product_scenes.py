@@ -2,8 +2,8 @@
 
 One 8 m × 6 m map holds every scene: a wall 1 m ahead of a robot at rest, a 1.6 m wide dead-end corridor,
 a wall behind a reversing robot (moving, and at rest), a robot beside a wall asked to spin, a robot inside a
-wall.  Each scene is
-a start state (x, y, v, θ), a constant nominal command and a duration; :func:`judge` says what must hold.
+wall.  Each scene is a start state (x, y, v, θ), a constant nominal command and a duration; :func:`judge` says
+what must hold.
 The scenes run offline against a table (:func:`simulate`) and over DDS with brt_node
 (:mod:`hjrno_ros.ros.scene_driver`).
 """
