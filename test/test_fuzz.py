@@ -594,7 +594,7 @@ CARD_VALUES = (None, "x", "", True, False, [], {}, math.nan, math.inf, -math.inf
 
 
 def test_model_card_mutations_load_or_raise_one_line_naming_a_field():
-    """ModelCard.from_dict on random mutations of models/paper_cnn.json (deleted fields, wrong types, NaN, Inf,
+    """ModelCard.from_dict on random mutations of models/default.json (deleted fields, wrong types, NaN, Inf,
     huge numbers) either loads a card whose numbers are finite, or raises one ValueError line naming the
     mutated field (or the part of the card it breaks); never another exception."""
     base = json.loads((ROOT / "models" / "default.json").read_text())

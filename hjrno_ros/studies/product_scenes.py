@@ -154,8 +154,6 @@ def run_all(params: CarParams, out: str | None = None, epsilon: float = 0.1) -> 
 def main(out) -> int:
     """``hjrno simulate --scenes product``: every scene under every filter mode for a reversing product robot;
     prints scenes.md; 0 when every row was written."""
-    from hjrno_ros.core.dynamics import CarParams
-
     text = run_all(CarParams.product(v_min=-0.5), out)
     print(text)
     return 0 if text.count("| none |") == len(SCENES) * 3 else 1
