@@ -1,11 +1,11 @@
 """``hjrno``: the package's command line (no ROS needed).
 
-    hjrno solve --scenario disk|room|indoor|air3d [--robot paper|product] [--grid 40,40,12,20] [--out DIR]
+    hjrno solve --scenario disk|room|indoor|air3d [--robot paper|product|diff_drive] [--grid 40,40,12,20] [--out DIR]
     hjrno generate --experiment NAME [--config FILE] [--out DIR] [--shard K/N] [--workers W]
     hjrno merge --out DIR [SHARD_DIR ...]
     hjrno show --dataset FILE
     hjrno train | ensemble | evaluate | calibrate | simulate | demo   (see --help of each)
-    hjrno bench solver|dataset|node|fuzz|depot [--out DIR]
+    hjrno bench solver|dataset|node|fuzz|depot|nav [--out DIR]
 
 Results tables (evaluate, simulate, bench) go to ``out/bench`` unless ``--out`` says otherwise;
 ``make bench`` writes the committed ones under ``benchmarks/results`` explicitly.
@@ -170,7 +170,7 @@ def cmd_train(args: argparse.Namespace) -> int:
                       max_minutes=args.max_minutes, out=out, allow_unconverged=args.allow_unconverged,
                       augment=args.augment, level_set_weight=args.level_set_weight,
                       level_set_width=args.level_set_width, angle_pair_weight=args.angle_pair_weight,
-                      init=args.init or "")
+                      init=args.init or "", table=args.table)
     weights = train(cfg, progress=not args.quiet)
     print(f"wrote {weights} and {Path(out).name}.json")
     return 0
@@ -283,7 +283,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    """Live demo: brt_node + a simulated robot over ROS 2; exit 1 if the robot collided."""
+    """Live demo: brt_node + a path follower in IR-SIM over ROS 2; exit 1 if the robot collided."""
     from hjrno_ros.tools import demo
 
     return demo.run(Path(args.out), args.seconds, args.seed, args.model, use_filter=not args.no_filter,
@@ -293,8 +293,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def cmd_bench(args: argparse.Namespace) -> int:
     from hjrno_ros.tools import benchmarks
 
+    select = {k: getattr(args, k) for k in ("robots", "maps", "drivers", "filters")}
     return benchmarks.dispatch(args.what, Path(args.out), quick=args.quick, only=args.only, model=args.model,
-                               episodes=args.episodes, seconds=args.seconds)
+                               episodes=args.episodes, seconds=args.seconds, select=select)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -304,7 +305,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("solve", help="solve a reference problem to the converged V∞")
     p.add_argument("--scenario", default="disk", help="disk | room | indoor | air3d (default: disk)")
-    p.add_argument("--robot", default=None, choices=["paper", "product"],
+    p.add_argument("--robot", default=None, choices=["paper", "product", "diff_drive"],
                    help="car problems: the robot model (default: paper, the reproduction's car; docs/design.md, "
                    "'Robot models')")
     p.add_argument("--grid", type=_shape, default=None, help="grid shape, e.g. 40,40,12,20 (car) or 51,40,50 (Air3D)")
@@ -374,6 +375,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "is then the other half's angle neighbours (default 0: off)")
     p.add_argument("--init", default=None, help="start from this model stem's weights (fine-tuning; fresh "
                    "optimiser and schedule, same --model and --model-config)")
+    p.add_argument("--table", action="store_true", help="an FNO that predicts the whole (v, theta) table in one "
+                   "pass (one output channel per node; --batch and --slices-per-epoch then count tables)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_train)
 
@@ -464,9 +467,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_simulate)
 
-    p = sub.add_parser("demo", help="brt_node keeps a careless simulated robot safe, live over ROS 2")
-    p.add_argument("--seconds", type=float, default=40.0, help="driving time (default 40)")
-    p.add_argument("--seed", type=int, default=0, help="arena and disturbance seed")
+    p = sub.add_parser("demo", help="brt_node keeps a Nav2-like path follower safe in IR-SIM, live over ROS 2")
+    p.add_argument("--seconds", type=float, default=60.0, help="driving time (default 60)")
+    p.add_argument("--seed", type=int, default=4, help="episode seed (start and goals on the demo's floor plan)")
     p.add_argument("--model", default=None, help="model stem for brt_node (default: the bundled model)")
     p.add_argument("--no-filter", action="store_true", help="drive without brt_node (to see the difference)")
     p.add_argument("--no-gif", action="store_true", help="only the PNG")
@@ -474,15 +477,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("bench", help="run a benchmark and write its results table")
-    p.add_argument("what", choices=["solver", "dataset", "node", "fuzz", "depot"])
+    p.add_argument("what", choices=["solver", "dataset", "node", "fuzz", "depot", "nav"])
     p.add_argument("--out", default="out/bench", help="results folder (default: out/bench)")
     p.add_argument("--quick", action="store_true", help="smallest case only (smoke run)")
     p.add_argument("--only", default=None, help="dataset bench: comma-separated families; solver bench: problems "
                    "(others keep old rows)")
     p.add_argument("--model", default=None, help="node and depot benches: model stem (default: the bundled model)")
-    p.add_argument("--seconds", type=float, default=None, help="fuzz bench: seconds of fuzzing (default: 180)")
-    p.add_argument("--episodes", type=int, default=200,
-                   help="depot bench: episodes on Nav2's depot map (default: 200; --seconds each, default: 12)")
+    p.add_argument("--seconds", type=float, default=None, help="fuzz bench: seconds of fuzzing (default: 180); nav "
+                   "bench: every episode's length (default: 90 s TurtleBot3, 40 s Jackal)")
+    p.add_argument("--episodes", type=int, default=None,
+                   help="depot bench: episodes on Nav2's depot map (default: 200; --seconds each, default: 12); nav "
+                   "bench: episodes per map, robot and driver (default: 3)")
+    for name, choices in (("robots", "turtlebot3,jackal"), ("maps", "plan1000001,plan1000002,depot"),
+                          ("drivers", "follower,careless"),
+                          ("filters", "none,stop_zone,ground_truth,learned,brt_node")):
+        p.add_argument(f"--{name}", default=None, help=f"nav bench: comma-separated {name} (default: {choices})")
     p.set_defaults(func=cmd_bench)
     return parser
 

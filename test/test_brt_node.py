@@ -192,7 +192,8 @@ def driver_and_node(model_stem: Path, domain: int, publish_map: bool = True, sta
                     **params) -> Iterator[tuple[Driver, BrtNode]]:
     """(driver, node) on their own context and domain; ``start``: configure and activate the node."""
     with driver_context(domain, publish_map) as (driver, executor):
-        overrides = [Parameter(k, value=v) for k, v in {"model_path": str(model_stem), **params}.items()]
+        overrides = [Parameter(k, value=v) for k, v in {"model_path": str(model_stem), "robot_model": "car",
+                                                         **params}.items()]
         node = BrtNode(context=driver.context, parameter_overrides=overrides)
         if start:
             node.start()
@@ -215,9 +216,11 @@ def settle(driver: Driver, x: float, y: float, v: float, theta: float, timeout: 
     driver.pose, driver.v, driver.frame, driver.odom_on = (x, y, theta), v, "map", True
 
     def ready() -> bool:
-        st, grid = driver.status, driver.status.get("value_grid")
-        return (st.get("state") in ("ok", "intervening", "unsafe_idle") and grid is not None
-                and math.hypot(grid["center"][0] - x, grid["center"][1] - y) < 0.05)
+        st, grid, robot = driver.status, driver.status.get("value_grid"), driver.status.get("robot") or {}
+        return (st.get("state") in ("ok", "intervening", "clipped", "unsafe_idle") and grid is not None
+                and math.hypot(grid["center"][0] - x, grid["center"][1] - y) < 0.05
+                and abs(robot.get("v", math.inf) - v) < 1e-3
+                and abs(math.remainder(robot["theta"] - theta, math.tau)) < 1e-3)
 
     assert wait_for(ready, timeout), driver.status
     return driver.status
@@ -257,12 +260,14 @@ def test_parameter_updates_are_validated(ros):
     assert wait_for(lambda: "epsilon" in driver.status, 10.0)
     eps = driver.status["epsilon"]
     assert node.get_parameter("epsilon").value == -1.0  # the start-up sentinel may stay while others change
-    assert driver.status["filter_mode"] == "blend"  # the default
+    assert driver.status["filter_mode"] == "least_restrictive"  # the default
     assert driver.set_param("filter_mode", "switch") == (True, "")
     assert wait_for(lambda: driver.status["filter_mode"] == "switch", 2.0)
     assert driver.set_param("filter_mode", "qp")[0] and driver.set_param("decay_rate", 8.0)[0]
     assert wait_for(lambda: (node.settings.mode, node.settings.decay_rate) == ("qp", 8.0), 2.0)
     assert driver.set_param("filter_mode", "blend")[0] and driver.set_param("decay_rate", 4.0)[0]
+    assert wait_for(lambda: node.settings.mode == "blend" and node.settings.epsilon > eps, 2.0)  # + sampling margin
+    assert driver.set_param("filter_mode", "least_restrictive")[0]
     for name, value, words in (("epsilon", -1.0, "epsilon"), ("filter_mode", "magic", "filter_mode"),
                                ("control_period", 0.0, "control_period"), ("decay_rate", -1.0, "decay_rate")):
         ok, reason = driver.set_param(name, value)
@@ -305,7 +310,7 @@ def test_inflation_radius_grows_obstacles_live(ros):
 
 def ground_truth_control(node: BrtNode, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(u*, ∇V) at ``state`` from a converged solve on a 24x24x7x12 grid of the same window (~7 s)."""
-    from hjrno_ros.core.dynamics import car_optimal_control
+    from hjrno_ros.core.dynamics import optimal_control
     from hjrno_ros.core.grids import car_grid
     from hjrno_ros.core.value_table import ValueTable
     from hjrno_ros.truth.solver import solve
@@ -321,7 +326,7 @@ def ground_truth_control(node: BrtNode, state: np.ndarray) -> tuple[np.ndarray, 
     target = np.broadcast_to(l0[:, :, None, None], grid.shape).astype(np.float32)
     values, _ = solve(DynamicDubinsCar(vf.params), grid, target, accuracy="medium", max_horizon=20.0)
     grad = ValueTable(grid, values).gradient(state)[0]
-    return car_optimal_control(vf.params, state, grad), grad
+    return optimal_control(vf.params, state, grad), grad
 
 
 def test_driving_into_wall_is_overridden(ros):
@@ -471,7 +476,8 @@ def test_pose_topic_and_stamped_commands(ros, model_stem):
     """pose_topic set: map-frame pose ∘ (odometry motion since the pose's stamp), odometry in its own frame;
     enable_stamped_cmd_vel: TwistStamped in and out, header copied through."""
     driver, _ = ros
-    overrides = {"model_path": str(model_stem), "pose_topic": "amcl_pose", "cmd_vel_in_topic": "pose_in",
+    overrides = {"model_path": str(model_stem), "robot_model": "car", "pose_topic": "amcl_pose",
+                 "cmd_vel_in_topic": "pose_in",
                  "cmd_vel_out_topic": "pose_out", "status_topic": "brt_pose/status",
                  "value_grid_topic": "brt_pose/value_grid", "value_topic": "brt_pose/value",
                  "enable_stamped_cmd_vel": True}
@@ -660,7 +666,7 @@ def test_node_process_runs_without_jax_takes_integer_floats_and_stops_cleanly(mo
     with driver_context(domain) as (driver, _):
         for run in range(3):
             driver.status = {}
-            params = {"inflation_radius": 0, "value_timeout": 0.2} if run == 0 else {"value_timeout": 0.2}
+            params = {"robot_model": "car", "value_timeout": 0.2, **({"inflation_radius": 0} if run == 0 else {})}
             with brt_node_process(domain, params, model_stem) as (proc, log_tail):
                 assert wait_for(lambda: driver.status.get("state") == "ok" or proc.poll() is not None, 60.0), \
                     (driver.status, log_tail(10))
@@ -769,8 +775,8 @@ def test_interrupt_at_any_moment_of_start_up_exits_cleanly(model_stem):
     env = {**os.environ, "ROS_DOMAIN_ID": str(DOMAIN + 30), "PYTHONUNBUFFERED": "1"}
     for delay in (0.0, 0.3, 0.8, 1.5, 2.5):
         proc = subprocess.Popen([sys.executable, "-m", "hjrno_ros.ros.main", "--ros-args", "-p",
-                                 f"model_path:={model_stem}"], env=env, stdout=subprocess.PIPE,
-                                stderr=subprocess.STDOUT, text=True)
+                                 f"model_path:={model_stem}", "-p", "robot_model:=car"], env=env,
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         maps = Path(f"/proc/{proc.pid}/maps")
         assert wait_for(lambda p=proc, m=maps: p.poll() is not None or "_multiarray_umath" in m.read_text(), 30.0)
         time.sleep(delay)

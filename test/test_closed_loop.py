@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from conftest import copy_model
 
-from hjrno_ros.core.dynamics import CarParams, car_f, car_optimal_control, car_worst_disturbance
+from hjrno_ros.core.dynamics import CarParams, optimal_control, robot_f, worst_disturbance
 from hjrno_ros.core.geometry import Disk
 from hjrno_ros.core.grids import GridSpec
 from hjrno_ros.core.model_card import ModelCard
@@ -55,12 +55,12 @@ def test_qp_mode_is_the_smallest_change_that_keeps_the_barrier_condition():
     u, changed = minimal_change(PARAMS, settings, states, values, grads, nominal)
 
     def rate(controls, x=states, g=grads):  # dV/dt under the worst-case disturbance
-        return (g * car_f(PARAMS, x, controls, car_worst_disturbance(PARAMS, x, g))).sum(-1)
+        return (g * robot_f(PARAMS, x, controls, worst_disturbance(PARAMS, x, g))).sum(-1)
 
     need = -settings.decay_rate * (values - settings.epsilon)
     assert np.array_equal(changed, rate(nominal) < need) and 0.2 < changed.mean() < 0.8
     assert np.array_equal(u[~changed], nominal[~changed])
-    feasible = rate(car_optimal_control(PARAMS, states, grads)) >= need
+    feasible = rate(optimal_control(PARAMS, states, grads)) >= need
     assert np.all(rate(u)[feasible] >= need[feasible] - 1e-9) and 0 < (~feasible).sum()
     grid = np.stack(np.meshgrid(np.linspace(-1, 1, 81), np.linspace(-1, 1, 81)), -1).reshape(-1, 2)
     for i in np.flatnonzero(changed & feasible)[:40]:  # nothing on a fine grid of the box is closer
@@ -152,8 +152,9 @@ def test_calibrate_and_simulate_commands(trained, tmp_path):
     assert {r["filter"]: r["collisions"] for r in rows} == {
         name: sum(study["collisions_by_world"][name].values()) for name in study["collisions_by_world"]}
     names = [r["filter"] for r in rows]
-    assert names[:5] == ["none", "stop_zone", "ground_truth", "ground_truth_blend", "ground_truth_qp"]
-    assert any(n.startswith("tiny_qp (eps=") for n in names) and len(rows) == 9
+    assert names[:6] == ["none", "stop_zone", "ground_truth_least_restrictive", "ground_truth", "ground_truth_blend",
+                         "ground_truth_qp"]
+    assert any(n.startswith("tiny_qp (eps=") for n in names) and len(rows) == 11
     assert all(r["episodes"] == 6 for r in rows)
     assert (out / "closed_loop.png").stat().st_size > 10_000 and "Targets:" in (out / "closed_loop.md").read_text()
 

@@ -30,27 +30,27 @@ def test_car_numpy_matches_hj_dynamics(name):
     for s in car_states(20, (p.v_min, p.v_max)):
         u, e = RNG.uniform(-1, 1, 2), RNG.uniform(-0.7, 0.7, 2)
         s[2] = RNG.choice([-0.5, 0.5]) if p.v_min < 0 else 0.5  # away from the speed limits, where f is affine
-        d = dyn.car_disturbance_bound(p, s[2]) * e
-        np.testing.assert_allclose(dyn.car_f(p, s, u, d), np.asarray(system(jnp.array(s), u, e, 0.0)), rtol=1e-5)
+        d = dyn.disturbance_bound(p, s[2]) * e
+        np.testing.assert_allclose(dyn.robot_f(p, s, u, d), np.asarray(system(jnp.array(s), u, e, 0.0)), rtol=1e-5)
         affine = system.open_loop_dynamics(s, 0.0) + system.control_jacobian(s, 0.0) @ u
         affine = affine + system.disturbance_jacobian(s, 0.0) @ e
-        np.testing.assert_allclose(dyn.car_f(p, s, u, d), np.asarray(affine), rtol=1e-5, atol=1e-7)
+        np.testing.assert_allclose(dyn.robot_f(p, s, u, d), np.asarray(affine), rtol=1e-5, atol=1e-7)
 
 
 @pytest.mark.parametrize("name", MODELS)
 def test_car_optimal_control_maximises_and_disturbance_minimises(name):
     p = MODELS[name]
     states, grads = car_states(200, (p.v_min, p.v_max)), RNG.normal(size=(200, 4))
-    u_star, d_star = dyn.car_optimal_control(p, states, grads), dyn.car_worst_disturbance(p, states, grads)
-    bound = dyn.car_disturbance_bound(p, states[:, 2])[:, None]
+    u_star, d_star = dyn.optimal_control(p, states, grads), dyn.worst_disturbance(p, states, grads)
+    bound = dyn.disturbance_bound(p, states[:, 2])[:, None]
     assert np.allclose(np.linalg.norm(d_star, axis=-1, keepdims=True), bound)
-    h_star = np.sum(grads * dyn.car_f(p, states, u_star, d_star), -1)
+    h_star = np.sum(grads * dyn.robot_f(p, states, u_star, d_star), -1)
     for _ in range(50):
         u = np.column_stack([RNG.uniform(-p.a_max, p.a_max, 200), RNG.uniform(-p.kappa_max, p.kappa_max, 200)])
         angle = RNG.uniform(0, 2 * np.pi, 200)
         d = bound * np.sqrt(RNG.uniform(size=(200, 1))) * np.column_stack([np.cos(angle), np.sin(angle)])
-        assert np.all(np.sum(grads * dyn.car_f(p, states, u, d_star), -1) <= h_star + 1e-9)
-        assert np.all(np.sum(grads * dyn.car_f(p, states, u_star, d), -1) >= h_star - 1e-9)
+        assert np.all(np.sum(grads * dyn.robot_f(p, states, u, d_star), -1) <= h_star + 1e-9)
+        assert np.all(np.sum(grads * dyn.robot_f(p, states, u_star, d), -1) >= h_star - 1e-9)
 
 
 @pytest.mark.parametrize("name", MODELS)
@@ -59,12 +59,12 @@ def test_car_hj_optimal_matches_numpy(name):
     system = systems.DynamicDubinsCar(p)
     for s, g in zip(car_states(10, (p.v_min, p.v_max)), RNG.normal(size=(10, 4)), strict=True):
         u, e = system.optimal_control_and_disturbance(jnp.array(s), 0.0, jnp.array(g))
-        np.testing.assert_allclose(np.asarray(u), dyn.car_optimal_control(p, s, g), rtol=1e-6)
-        np.testing.assert_allclose(dyn.car_disturbance_bound(p, s[2]) * np.asarray(e),
-                                   dyn.car_worst_disturbance(p, s, g), rtol=1e-5, atol=1e-7)
+        np.testing.assert_allclose(np.asarray(u), dyn.optimal_control(p, s, g), rtol=1e-6)
+        np.testing.assert_allclose(dyn.disturbance_bound(p, s[2]) * np.asarray(e),
+                                   dyn.worst_disturbance(p, s, g), rtol=1e-5, atol=1e-7)
         h = np.asarray(system.hamiltonian(jnp.array(s), 0.0, 0.0, jnp.array(g)))
         expect = (g[0] * s[2] * np.cos(s[3]) + g[1] * s[2] * np.sin(s[3]) + p.a_max * abs(g[2])
-                  + p.kappa_max * abs(s[2] * g[3]) - dyn.car_disturbance_bound(p, s[2]) * np.hypot(g[0], g[1]))
+                  + p.kappa_max * abs(s[2] * g[3]) - dyn.disturbance_bound(p, s[2]) * np.hypot(g[0], g[1]))
         np.testing.assert_allclose(h, expect, rtol=1e-5, atol=1e-6)
 
 
@@ -74,17 +74,17 @@ def test_reversing_turns_the_other_way():
     grad = np.array([0.0, 0.0, 0.0, 1.0])  # V grows with θ
     forward, backward = np.array([0.0, 0.0, 0.5, 0.0]), np.array([0.0, 0.0, -0.5, 0.0])
     for state in (forward, backward):
-        u = dyn.car_optimal_control(p, state, grad)
-        assert dyn.car_f(p, state, u, np.zeros(2))[3] == pytest.approx(p.kappa_max * 0.5)  # θ̇ > 0 either way
-    assert dyn.car_optimal_control(p, backward, grad)[1] == -p.kappa_max
+        u = dyn.optimal_control(p, state, grad)
+        assert dyn.robot_f(p, state, u, np.zeros(2))[3] == pytest.approx(p.kappa_max * 0.5)  # θ̇ > 0 either way
+    assert dyn.optimal_control(p, backward, grad)[1] == -p.kappa_max
 
 
 def test_a_stopped_product_robot_stays_stopped():
     p = dyn.CarParams.product()
     rest = np.array([[1.0, 2.0, 0.0, 0.3]])
     grads = RNG.normal(size=(1, 4))
-    assert np.all(dyn.car_worst_disturbance(p, rest, grads) == 0)
-    f = dyn.car_f(p, rest, np.array([[0.0, p.kappa_max]]), dyn.car_worst_disturbance(p, rest, grads))
+    assert np.all(dyn.worst_disturbance(p, rest, grads) == 0)
+    f = dyn.robot_f(p, rest, np.array([[0.0, p.kappa_max]]), dyn.worst_disturbance(p, rest, grads))
     assert np.all(f == 0)
 
 
@@ -95,13 +95,13 @@ def test_speed_stays_within_limits(v_min):
     at_bottom = np.array([[0.0, 0.0, v_min, 0.0]])
     accelerate, brake = np.array([[1.0, 0.0]]), np.array([[-1.0, 0.0]])
     zero = np.zeros((1, 2))
-    assert dyn.car_f(p, at_top, accelerate, zero)[0, 2] == 0.0
-    assert dyn.car_f(p, at_top, brake, zero)[0, 2] == -1.0
-    assert dyn.car_f(p, at_bottom, brake, zero)[0, 2] == 0.0
+    assert dyn.robot_f(p, at_top, accelerate, zero)[0, 2] == 0.0
+    assert dyn.robot_f(p, at_top, brake, zero)[0, 2] == -1.0
+    assert dyn.robot_f(p, at_bottom, brake, zero)[0, 2] == 0.0
     # The optimal control never asks to leave the range, whatever the gradient says.
     wants_faster = np.array([[0.0, 0.0, 1.0, 0.0]])
-    assert dyn.car_optimal_control(p, at_top, wants_faster)[0, 0] == 0.0
-    assert dyn.car_optimal_control(p, at_bottom, -wants_faster)[0, 0] == 0.0
+    assert dyn.optimal_control(p, at_top, wants_faster)[0, 0] == 0.0
+    assert dyn.optimal_control(p, at_bottom, -wants_faster)[0, 0] == 0.0
 
 
 def test_air3d_matches_hj_builtin():
@@ -180,4 +180,4 @@ def test_without_a_reason_in_v_the_safe_control_brakes():
     p = dyn.CarParams.product(v_min=-0.6)
     states = np.array([[0.0, 0.0, 0.5, 0.0], [0.0, 0.0, -0.4, 0.0], [0.0, 0.0, 0.0, 0.0]])
     flat = np.array([[0.3, -0.2, 0.0, 0.1]] * 3)
-    assert dyn.car_optimal_control(p, states, flat)[:, 0].tolist() == [-p.a_max, p.a_max, 0.0]
+    assert dyn.optimal_control(p, states, flat)[:, 0].tolist() == [-p.a_max, p.a_max, 0.0]

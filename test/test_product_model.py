@@ -108,9 +108,9 @@ def test_safe_starts_never_collide_forwards_or_reversing(reversing_indoor, distu
                           rng.uniform(-np.pi, np.pi, n)])
     safe = x0[table.value(x0) > 0.02][:600]
     assert len(safe) == 600 and np.sum(safe[:, 2] < 0) >= 150
-    control, worst = simulation.car_optimal_feedback(params, table)
-    noise = worst if disturbance == "worst" else simulation.car_random_disturbance(params, rng)
-    out = simulation.simulate(simulation.car_dynamics(params), control, noise, problem.clearance, safe, 10.0,
+    control, worst = simulation.optimal_feedback(params, table)
+    noise = worst if disturbance == "worst" else simulation.random_disturbance(params, rng)
+    out = simulation.simulate(simulation.robot_dynamics(params), control, noise, problem.clearance, safe, 10.0,
                               dt=0.02, wrap=simulation.wrap_car)
     assert not out.collided.any(), f"{out.collided.sum()} of {len(safe)} safe starts collided"
     assert np.all(out.final[:, 2] >= params.v_min - 1e-9) and np.all(out.final[:, 2] <= params.v_max + 1e-9)

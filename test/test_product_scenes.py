@@ -1,7 +1,7 @@
-"""The product robot model's behaviour over real DDS (issue 41, part 5): brt_node filters with the HJ solver's
-table for the scenes' map (a solver card: no learned model, the refinement path started from the target), or
-with the bundled default (forward speeds, read by symmetry for this reversing base), and a simulated base
-integrates the filtered command in real time with a disturbance ‖d‖ ≤ 0.1·|v|."""
+"""The product models' behaviour over real DDS: brt_node filters for the product car with the HJ solver's table
+for the scenes' map (a solver card: no learned model, the refinement path started from the target), and for the
+differential drive with the bundled default (forward speeds, read by symmetry for this reversing base); a simulated
+base integrates the filtered command in real time with a disturbance ‖d‖ ≤ 0.1·|v|."""
 
 from __future__ import annotations
 
@@ -20,29 +20,30 @@ from std_msgs.msg import String  # noqa: E402
 from test_brt_node import DOMAIN, ROOT, wait_for  # noqa: E402
 
 from hjrno_ros.core import safety_filter  # noqa: E402
-from hjrno_ros.core.dynamics import CarParams  # noqa: E402
 from hjrno_ros.core.model_card import ModelCard  # noqa: E402
 from hjrno_ros.ros.node import BrtNode  # noqa: E402
 from hjrno_ros.ros.scene_driver import SceneBase  # noqa: E402
 from hjrno_ros.studies import product_scenes  # noqa: E402
 
-ROBOT = CarParams.product(v_min=-0.5)  # a base that reverses up to 0.5 m/s
+CAR, CAR_SCENES = product_scenes.ROBOTS["car"]  # a base that reverses up to 0.5 m/s
+DIFF_DRIVE, DIFF_DRIVE_SCENES = product_scenes.ROBOTS["diff_drive"]
 
 
 @pytest.fixture(scope="module")
 def solver_card(tmp_path_factory):
     stem = tmp_path_factory.mktemp("solver") / "product_solver"
-    stem.with_suffix(".json").write_text(json.dumps(ModelCard.solver(ROBOT, cell=0.2, speeds=7, headings=16)))
+    stem.with_suffix(".json").write_text(json.dumps(ModelCard.solver(CAR, cell=0.2, speeds=7, headings=16)))
     return stem
 
 
-@pytest.fixture(scope="module", params=["solver", "default"])
+@pytest.fixture(scope="module", params=["car", "diff_drive"])
 def scene_node(request, solver_card):
-    """brt_node over DDS for the scenes' base: on the solver card (the refinement path) or on the bundled default
-    (a forward-speed FNO serving this reversing base by symmetry)."""
+    """brt_node over DDS for the scenes' base: the car on the solver card (the refinement path), or the differential
+    drive on the bundled default (a forward-speed FNO serving this reversing base by symmetry)."""
+    robot = CAR if request.param == "car" else DIFF_DRIVE
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=DOMAIN + 45)
-    base = SceneBase(context, ROBOT)
+    base = SceneBase(context, robot)
     status: dict = {}
     probe = Node("scene_probe", context=context)
     probe.create_subscription(String, "brt/status", lambda m: status.update(json.loads(m.data)), 10)
@@ -51,9 +52,12 @@ def scene_node(request, solver_card):
         executor.add_node(node)
     spinner = threading.Thread(target=executor.spin, daemon=True)
     spinner.start()
-    params = ({"model_path": str(solver_card), "refine_horizon": 60.0, "refine_stage": 5.0, "refine_cpus": 1}
-              if request.param == "solver" else {"model_path": str(ROOT / "models" / "default"), "v_min": ROBOT.v_min})
-    source = "refined" if request.param == "solver" else "operator"
+    params = ({"model_path": str(solver_card), "refine_horizon": 60.0, "refine_stage": 5.0, "refine_cpus": 1,
+               "robot_model": "car"}
+              if request.param == "car" else {"model_path": str(ROOT / "models" / "default"), "v_min": robot.v_min,
+                                              "a_max": robot.a_max, "omega_max": robot.omega_max,
+                                              "v_max": robot.v_max})
+    source = "refined" if request.param == "car" else "operator"
     brt = BrtNode(context=context, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
     brt.start()
     executor.add_node(brt)
@@ -61,7 +65,7 @@ def scene_node(request, solver_card):
         base.place(product_scenes.SCENES[0].start)
         assert wait_for(lambda: status.get("value_source") == source, 240.0), status
         assert source == "operator" or status["refinement"]["settled"], status
-        yield base, status
+        yield base, status, request.param
     finally:
         executor.shutdown(timeout_sec=2.0)
         for node in (brt, base, probe):
@@ -74,42 +78,57 @@ def test_a_solver_card_waits_for_a_settled_table(solver_card):
     """Until the solve from the target has settled the node fails closed (an unsettled table from the target
     under-approximates the tube), and a solver card without refine_horizon is refused with one line."""
     card = ModelCard.load(solver_card)
-    assert card.kind == "solver" and card.dynamics == ROBOT
+    assert card.kind == "solver" and card.dynamics == CAR
     from hjrno_ros.ros.model_files import load_model
     from hjrno_ros.ros.parameters import PARAMETERS
 
     cfg = {name: spec.default for name, spec in PARAMETERS.items()}
+    with pytest.raises(ValueError, match="set robot_model: car"):  # the default robot_model is diff_drive
+        load_model({**cfg, "model_path": str(solver_card), "refine_horizon": 10.0})
+    cfg["robot_model"] = "car"
     with pytest.raises(ValueError, match="refine_horizon > 0"):
         load_model({**cfg, "model_path": str(solver_card), "refine_horizon": 0.0})
     with pytest.raises(ValueError, match="write the robot's limits into the card"):
         load_model({**cfg, "model_path": str(solver_card), "refine_horizon": 10.0, "v_max": 2.0})
 
 
-@pytest.mark.parametrize("scene", product_scenes.SCENES, ids=[s.name for s in product_scenes.SCENES])
-def test_scene_over_dds(scene_node, scene):
-    base, status = scene_node
+SCENE_NAMES = sorted({s.name for s in CAR_SCENES + DIFF_DRIVE_SCENES})
+
+
+@pytest.mark.parametrize("name", SCENE_NAMES)
+def test_scene_over_dds(scene_node, name):
+    base, status, robot = scene_node
+    scenes = {s.name: s for s in (CAR_SCENES if robot == "car" else DIFF_DRIVE_SCENES)}
+    if name not in scenes:
+        return  # a scene of the other robot model
+    scene = scenes[name]
     base.place(scene.start)
     assert wait_for(lambda: status.get("robot") is not None and abs(status["robot"]["x"] - scene.start[0]) < 1e-3
                     and abs(status["robot"]["y"] - scene.start[1]) < 1e-3, 5.0), status
+    stops = status["counts"]["stops"]
     states, outputs = base.run(scene)
     assert len(outputs) > 0.5 * scene.seconds / 0.05, (len(outputs), status)  # the node answered
     problems = product_scenes.judge(scene, states, outputs)
     assert not problems, (scene.expect, problems, status)
     if scene.name == "rest_stop":
         assert np.all(outputs == 0.0)  # the nominal stop passed as it is: nothing added
+    if robot == "diff_drive":
+        assert status["counts"]["stops"] == stops  # the robot's own motion never fails closed
 
 
 def test_scenes_offline_with_the_same_table_kind():
-    """The same scenes without ROS (the numpy filter on a solved table), every filter mode: hjrno simulate's
-    scenes."""
+    """The same scenes without ROS (the numpy filter on a solved table): the car in every filter mode, the
+    differential drive in the node's least-restrictive mode (hjrno simulate's scenes)."""
     from hjrno_ros.studies.product_scenes import solve_scene_table
 
-    table = solve_scene_table(ROBOT, cell=0.2, speeds=7, headings=16)
-    for mode in safety_filter.MODES:
-        settings = safety_filter.FilterSettings(epsilon=0.1, mode=mode)
-        for scene in product_scenes.SCENES:
-            states, outputs = product_scenes.simulate(ROBOT, table, settings, scene)
-            assert not product_scenes.judge(scene, states, outputs), (mode, scene.name)
+    for robot, scenes, modes in ((CAR, CAR_SCENES, safety_filter.MODES),
+                                 (DIFF_DRIVE, DIFF_DRIVE_SCENES, ("least_restrictive",))):
+        table = solve_scene_table(robot, cell=0.2, speeds=7, headings=16)
+        for mode in modes:
+            settings = safety_filter.FilterSettings(epsilon=0.1, mode=mode)
+            for scene in scenes:
+                states, outputs = product_scenes.simulate(robot, table, settings, scene)
+                assert not product_scenes.judge(scene, states, outputs), (robot, mode, scene.name)
 
 
 def test_hjrno_simulate_runs_the_scenes(tmp_path):
@@ -117,4 +136,4 @@ def test_hjrno_simulate_runs_the_scenes(tmp_path):
 
     assert cli.main(["simulate", "--scenes", "product", "--out", str(tmp_path)]) == 0
     table = (tmp_path / "scenes.md").read_text()
-    assert table.count("| none |") == 3 * len(product_scenes.SCENES)
+    assert table.count("| least_restrictive | none |") == len(CAR_SCENES) + len(DIFF_DRIVE_SCENES)

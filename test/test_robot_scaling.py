@@ -1,4 +1,4 @@
-"""The node takes the robot (issue 42, with today's paper-model card): any robot with the card's dimensionless
+"""The node takes the robot (here a car card, the paper's): any robot of the card's model with its dimensionless
 numbers is served by exact similarity; others are refused with the covered range."""
 
 from __future__ import annotations
@@ -16,9 +16,10 @@ from test_brt_node import DOMAIN, FAR, NEAR_WALL, driver_and_node, map_msg, mode
 from hjrno_ros.core.dynamics import CarParams  # noqa: E402
 from hjrno_ros.core.model_card import ModelCard  # noqa: E402
 from hjrno_ros.core.safety_filter import sampling_margin  # noqa: E402
+from hjrno_ros.core.scaled_values import ScaledValueFunction, covered_scaling  # noqa: E402
 from hjrno_ros.core.similarity import Dimensionless  # noqa: E402
 from hjrno_ros.ros import parameters  # noqa: E402
-from hjrno_ros.ros.robot import ScaledValueFunction, covered_scaling, robot_params  # noqa: E402
+from hjrno_ros.ros.robot import robot_params  # noqa: E402
 
 S = 0.25  # the small robot's length scale against the card's car: κ_max 4 /m, v_max 0.5 m/s, a_max 1 m/s²
 SMALL = {"kappa_max": 4.0, "v_max": 0.5, "a_max": 1.0}
@@ -26,7 +27,7 @@ SMALL = {"kappa_max": 4.0, "v_max": 0.5, "a_max": 1.0}
 
 def cfg(**robot) -> dict:
     values = {name: spec.default for name, spec in parameters.PARAMETERS.items()}
-    return {**values, **robot}
+    return {**values, "robot_model": "car", **robot}
 
 
 def test_robot_parameters_map_onto_the_card_or_are_refused(model_stem):  # noqa: F811
@@ -37,8 +38,13 @@ def test_robot_parameters_map_onto_the_card_or_are_refused(model_stem):  # noqa:
     scaling = covered_scaling(card.dynamics, small)
     assert scaling.length == pytest.approx(S) and scaling.speed == pytest.approx(0.5)
     turtlebot = robot_params(card.dynamics, cfg(kappa_max=2.84 / 0.22, v_max=0.22, a_max=2.5))
-    with pytest.raises(ValueError, match=r"outside what the model card covers \(a_max/\(kappa_max\*v_max\^2\) 1,"):
+    with pytest.raises(ValueError, match=r"outside what the model card covers \(dynamic_dubins_car: "
+                                         r"a_max/\(kappa_max\*v_max\^2\) 1,"):
         covered_scaling(card.dynamics, turtlebot)
+    with pytest.raises(ValueError, match="set robot_model: car"):
+        robot_params(card.dynamics, cfg(robot_model="diff_drive"))
+    with pytest.raises(ValueError, match="omega_max is for the other robot model"):
+        robot_params(card.dynamics, cfg(omega_max=2.0))
     assert "a_max" in parameters.validate(cfg(a_max=0.0), startup=True)
     assert parameters.validate(cfg(v_min=math.nan), startup=True) is None
 
@@ -78,8 +84,10 @@ def test_the_node_filters_a_smaller_robot_on_a_smaller_map(model_stem, ros):  # 
     with driver_and_node(model_stem, DOMAIN + 46, publish_map=False, **SMALL) as (small, node):
         small.map_pub.publish(small_map)
         margin = ModelCard.load(model_stem).margin()
-        sampled = sampling_margin(node.vf.params, node.settings.dt)
-        assert node.vf.params.kappa_max == 4.0 and node.settings.epsilon == pytest.approx(S * margin + sampled)
+        assert node.vf.params.kappa_max == 4.0 and node.settings.epsilon == pytest.approx(S * margin)  # one period
+        # ahead (least_restrictive): no sampling margin; the modes that judge the present state add it
+        blend = parameters.filter_settings(node.card, {**node._cfg, "filter_mode": "blend"}, node.scale, node.vf.params)
+        assert blend.epsilon == pytest.approx(S * margin + sampling_margin(node.vf.params, node.settings.dt))
         for name, (x, y, v, theta) in (("far", (*FAR, 0.5, 0.0)), ("near", (*NEAR_WALL, 1.0, 0.3))):
             value = settle(small, S * x, S * y, 0.5 * v, theta, timeout=20.0)["value"]
             assert value == pytest.approx(S * reference[name], rel=2e-3, abs=2e-3), (name, value, reference)
@@ -96,8 +104,8 @@ def test_a_conditioned_product_card_covers_a_range_of_robots():
     scaling = covered_scaling(card, turtlebot, {"log_a_max": [math.log(0.5), math.log(4.0)]})
     assert scaling.length == pytest.approx(0.22 / 2.84) and scaling.speed == pytest.approx(0.22)
     for bad in (dict(a_max=10.0), dict(tracking_error=0.2), dict(v_min=-2.0)):
-        with pytest.raises(ValueError, match=r"covers \(a_max/\(kappa_max\*v_max\^2\) 0\.5\.\.4, v_min/v_max -1\.\.0, "
-                                             r"tracking_error 0\.\.0\.1, d0/v_max 0\)"):
+        with pytest.raises(ValueError, match=r"covers \(dynamic_dubins_car: a_max/\(kappa_max\*v_max\^2\) 0\.5\.\.4, "
+                                             r"v_min/v_max -1\.\.0, tracking_error 0\.\.0\.1, d0/v_max 0\)"):
             covered_scaling(card, dataclasses.replace(jackal, **bad), {"log_a_max": [math.log(0.5), math.log(4.0)]})
     # without the conditioning channel only the card's own a_max/(κ v²) is covered
     with pytest.raises(ValueError, match=r"a_max/\(kappa_max\*v_max\^2\) 1,"):

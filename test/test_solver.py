@@ -57,9 +57,9 @@ def test_rollouts_from_safe_states_never_collide(disk_coarse, disturbance):
     rng = np.random.default_rng(11)
     x0 = random_car_states(rng, 6000, 4.0)
     safe = x0[table.value(x0) > 0.02][:600]
-    control, worst = simulation.car_optimal_feedback(params, table)
-    noise = worst if disturbance == "worst" else simulation.car_random_disturbance(params, rng)
-    out = simulation.simulate(simulation.car_dynamics(params), control, noise, problem.clearance, safe, 10.0,
+    control, worst = simulation.optimal_feedback(params, table)
+    noise = worst if disturbance == "worst" else simulation.random_disturbance(params, rng)
+    out = simulation.simulate(simulation.robot_dynamics(params), control, noise, problem.clearance, safe, 10.0,
                               dt=0.02, wrap=simulation.wrap_car)
     assert len(safe) == 600
     assert not out.collided.any(), f"{out.collided.sum()} of {len(safe)} safe starts collided"
@@ -73,8 +73,8 @@ def test_unsafe_states_are_mostly_lost_to_the_worst_disturbance(disk_coarse):
     rng = np.random.default_rng(5)
     x0 = random_car_states(rng, 20000, 3.0)
     inside = x0[(table.value(x0) < -0.02) & (problem.clearance(x0) > 0)][:300]
-    control, worst = simulation.car_optimal_feedback(params, table)
-    out = simulation.simulate(simulation.car_dynamics(params), control, worst, problem.clearance, inside, 10.0,
+    control, worst = simulation.optimal_feedback(params, table)
+    out = simulation.simulate(simulation.robot_dynamics(params), control, worst, problem.clearance, inside, 10.0,
                               wrap=simulation.wrap_car)
     lost = out.collided.mean()
     print(f"\nstates with V < 0 outside the obstacle: {len(inside)}; lost under worst-case disturbance: {lost:.2f}")

@@ -1,4 +1,5 @@
-"""Dynamic Dubins car and Air3D: one set of formulas for solver, filter and simulator.
+"""Ground robots (dynamic Dubins car, differential drive) and Air3D: one set of formulas for solver, filter and
+simulator.
 
 Every formula is written once against an array module ``xp`` (``numpy`` or ``jax.numpy``):
 the dynamics f(x, u, d), the optimal (value-maximising) control and the worst
@@ -6,12 +7,15 @@ the dynamics f(x, u, d), the optimal (value-maximising) control and the worst
 :mod:`hjrno_ros.truth.systems` call the same functions with ``xp=jax.numpy``, so the ground
 truth, the simulator and the safety filter cannot drift apart.  This module imports numpy only.
 
-The car (docs/design.md, "Robot models"): ẋ = v cos θ + d₁, ẏ = v sin θ + d₂, v̇ = u₁, θ̇ = v·u₂,
-|u₁| ≤ a_max, |u₂| ≤ κ_max, v ∈ [v_min, v_max] (v_min < 0: the base reverses), and a position
-disturbance bounded by a tracking error that grows with speed, ‖d‖ ≤ δ·|v| + d₀.  Two named
-configurations: :meth:`CarParams.product` (δ = 0.1, d₀ = 0: a stopped robot stays stopped) and
-:meth:`CarParams.paper` (δ = 0, d₀ = 0.1 m/s: the HJRNO paper's benchmark car, the default, which
-the reproduction experiments, their datasets and the bundled models use).
+Both ground robots (docs/design.md, "Robot models") have the state (x, y, v, θ): ẋ = v cos θ + d₁,
+ẏ = v sin θ + d₂, v̇ = u₁ with |u₁| ≤ a_max, v ∈ [v_min, v_max] (v_min < 0: the base reverses), a position
+disturbance bounded by a tracking error that grows with speed, ‖d‖ ≤ δ·|v| + d₀, and a turn θ̇ = g(v)·u₂:
+
+- the **car** (:class:`CarParams`): curvature control, g(v) = v, |u₂| ≤ κ_max.  Named configurations
+  :meth:`CarParams.product` (δ = 0.1, d₀ = 0) and :meth:`CarParams.paper` (δ = 0, d₀ = 0.1 m/s: the HJRNO
+  paper's benchmark car, the default, which the reproduction experiments and their models use);
+- the **differential drive** (:class:`DiffDriveParams`): turn-rate control, g(v) = 1, |u₂| ≤ ω_max, so it
+  turns in place.  Its defaults are the product robot's (δ = 0.1, d₀ = 0: a stopped robot stays stopped).
 
 Arrays: a state is ``(..., n)`` with the last axis in state order, (x, y, v, θ) for the car and
 (x, y, ψ) for Air3D; gradients, controls and disturbances follow the same rule.  SI units.
@@ -30,6 +34,7 @@ Array = Any
 
 _EDGE_TOL = 1e-6  # relative tolerance for "the speed sits on its limit"
 CAR_MODEL = "dynamic_dubins_car"  # the card's dynamics.model: the equations above, curvature control
+DIFF_DRIVE_MODEL = "diff_drive"  # the same with turn-rate control
 # A card written before the product model: {a_max, kappa_max, d_max, v_min, v_max}, the paper's
 # disturbance ‖d‖ ≤ d_max, i.e. d₀ = d_max with δ = 0 (CarParams.from_dict translates it).
 LEGACY_CAR_FIELDS = ("a_max", "kappa_max", "d_max", "v_min", "v_max")
@@ -51,7 +56,7 @@ class CarParams:
 
     ``CarParams()`` is the paper's car (:meth:`paper`); :meth:`product` is the product robot.  The
     paper's name ``d_max`` is accepted as a keyword (it means d₀ with δ = 0) and readable while
-    δ = 0; with a speed-dependent bound use :func:`car_disturbance_bound`.
+    δ = 0; with a speed-dependent bound use :func:`disturbance_bound`.
     """
 
     a_max: float = 1.0  # |u1| ≤ a_max, m/s²
@@ -103,12 +108,31 @@ class CarParams:
     def d_max(self) -> float:
         """The paper's speed-independent bound d₀; an error while δ > 0 (the bound depends on v)."""
         _check(self.tracking_error == 0, f"the disturbance bound depends on speed (tracking_error "
-               f"{self.tracking_error}): use car_disturbance_bound(params, v), not d_max")
+               f"{self.tracking_error}): use disturbance_bound(params, v), not d_max")
         return self.d0
+
+    model = CAR_MODEL  # the card's dynamics.model
 
     def disturbance_max(self) -> float:
         """The largest bound over the speed range, max_v δ·|v| + d₀, m/s."""
         return self.tracking_error * max(abs(self.v_min), abs(self.v_max)) + self.d0
+
+    @property
+    def turn_max(self) -> float:
+        """The bound of the turn control u₂: κ_max, 1/m."""
+        return self.kappa_max
+
+    @property
+    def turn_rate_max(self) -> float:
+        """The fastest turn at top speed, κ_max·v_max, rad/s (sets the time scale of similarity)."""
+        return self.kappa_max * self.v_max
+
+    def rescaled(self, length: float, time: float) -> CarParams:
+        """The same car with lengths divided by ``length`` and times by ``time`` (docs/design.md, "Similarity")."""
+        speed = length / time
+        return CarParams(a_max=self.a_max * time ** 2 / length, kappa_max=self.kappa_max * length,
+                         d0=self.d0 / speed, v_min=self.v_min / speed, v_max=self.v_max / speed,
+                         tracking_error=self.tracking_error)
 
     def as_dict(self) -> dict[str, Any]:
         """``{"model": "dynamic_dubins_car", a_max, kappa_max, d0, v_min, v_max, tracking_error}``: what
@@ -129,13 +153,88 @@ class CarParams:
         return cls(**d)
 
 
-CAR_PRESETS = {"paper": CarParams.paper, "product": CarParams.product}
+@dataclasses.dataclass(frozen=True)
+class DiffDriveParams:
+    """Limits and disturbance bound of the differential drive (docs/design.md, "Robot models"): θ̇ = u₂ with
+    |u₂| ≤ ω_max, so it turns in place.  The defaults are the product robot's in its own units
+    (v_max = ω_max = 1, δ = 0.1, d₀ = 0: a stopped robot stays stopped, and turning in place keeps it safe)."""
+
+    a_max: float = 1.0  # |u1| ≤ a_max, m/s²
+    omega_max: float = 1.0  # |u2| ≤ ω_max, rad/s
+    d0: float = 0.0  # m/s, the disturbance at rest
+    v_min: float = 0.0  # m/s; < 0 allowed (a base that reverses)
+    v_max: float = 1.0  # m/s
+    tracking_error: float = 0.1  # δ
+
+    model = DIFF_DRIVE_MODEL
+
+    def __post_init__(self) -> None:
+        values = dataclasses.astuple(self)
+        if not _concrete(values):
+            return
+        _check(all(math.isfinite(v) for v in values), f"diff-drive parameters must be finite: {self}")
+        _check(self.a_max > 0, f"a_max must be > 0, got {self.a_max}")
+        _check(self.omega_max > 0, f"omega_max must be > 0, got {self.omega_max}")
+        _check(self.v_max > 0, f"v_max must be > 0, got {self.v_max}")
+        _check(self.v_min < self.v_max, f"need v_min < v_max, got v_min={self.v_min} v_max={self.v_max}")
+        _check(self.tracking_error >= 0, f"tracking_error (δ) must be >= 0, got {self.tracking_error}")
+        _check(self.d0 >= 0, f"d0 must be >= 0, got {self.d0}")
+
+    disturbance_max = CarParams.disturbance_max
+
+    @property
+    def preset(self) -> str | None:
+        return "diff_drive" if self == DiffDriveParams() else None
+
+    @property
+    def turn_max(self) -> float:
+        """The bound of the turn control u₂: ω_max, rad/s."""
+        return self.omega_max
+
+    @property
+    def turn_rate_max(self) -> float:
+        """The fastest turn, ω_max, rad/s (at every speed, rest included)."""
+        return self.omega_max
+
+    def rescaled(self, length: float, time: float) -> DiffDriveParams:
+        """The same robot with lengths divided by ``length`` and times by ``time``."""
+        speed = length / time
+        return DiffDriveParams(a_max=self.a_max * time ** 2 / length, omega_max=self.omega_max * time,
+                               d0=self.d0 / speed, v_min=self.v_min / speed, v_max=self.v_max / speed,
+                               tracking_error=self.tracking_error)
+
+    def as_dict(self) -> dict[str, Any]:
+        """``{"model": "diff_drive", a_max, omega_max, d0, v_min, v_max, tracking_error}``."""
+        return {"model": DIFF_DRIVE_MODEL, **{k: float(v) for k, v in dataclasses.asdict(self).items()}}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> DiffDriveParams:
+        """Inverse of :meth:`as_dict`; missing fields take the defaults, unknown ones are a ValueError."""
+        d = dict(d)
+        model = d.pop("model", DIFF_DRIVE_MODEL)
+        _check(model == DIFF_DRIVE_MODEL, f"not a diff-drive model: {model!r}")
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - names)
+        _check(not unknown, f"unknown diff-drive parameter(s) {unknown}; known: {sorted(names)}")
+        return cls(**{k: float(v) for k, v in d.items()})
 
 
-def car_preset(name: str) -> CarParams:
-    """The named configuration ``"paper"`` or ``"product"``."""
+RobotParams = CarParams | DiffDriveParams
+ROBOT_MODELS = {CAR_MODEL: CarParams, DIFF_DRIVE_MODEL: DiffDriveParams}
+CAR_PRESETS = {"paper": CarParams.paper, "product": CarParams.product, "diff_drive": DiffDriveParams}
+
+
+def car_preset(name: str) -> RobotParams:
+    """The named robot model: ``"paper"`` or ``"product"`` (cars) or ``"diff_drive"``."""
     _check(name in CAR_PRESETS, f"unknown robot model {name!r}; choose from {', '.join(CAR_PRESETS)}")
     return CAR_PRESETS[name]()
+
+
+def robot_from_dict(d: Mapping[str, Any]) -> RobotParams:
+    """A card's or scenario's ``dynamics`` dict as parameters: ``model`` picks the class (none: the car)."""
+    model = d.get("model", CAR_MODEL)
+    _check(model in ROBOT_MODELS, f"unknown robot dynamics model {model!r}; known: {sorted(ROBOT_MODELS)}")
+    return ROBOT_MODELS[model].from_dict(d)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -160,41 +259,44 @@ class Air3DParams:
 
 
 # ---------------------------------------------------------------------------------------------
-# Dynamic Dubins car: ẋ = v cos θ + d1, ẏ = v sin θ + d2, v̇ = u1, θ̇ = v·u2, ‖d‖ ≤ δ·|v| + d₀.
+# Ground robots: ẋ = v cos θ + d1, ẏ = v sin θ + d2, v̇ = u1, θ̇ = g(v)·u2, ‖d‖ ≤ δ·|v| + d₀, with
+# g(v) = v for the car (curvature) and 1 for the differential drive (turn rate).
 
 
-def car_disturbance_bound(p: CarParams, v: Array, xp=np) -> Array:
+def turn_gain(p: RobotParams, v: Array, xp=np) -> Array:
+    """g(v) in θ̇ = g(v)·u₂: v for the car (curvature control), 1 for the differential drive (turn rate)."""
+    return v if p.model == CAR_MODEL else xp.ones_like(v)
+
+
+def disturbance_bound(p: RobotParams, v: Array, xp=np) -> Array:
     """The radius of the disturbance ball at speed v: δ·|v| + d₀, m/s."""
     return p.tracking_error * xp.abs(v) + p.d0
 
 
-def feasible_acceleration(p: CarParams, v: Array, u1: Array, xp=np) -> Array:
+def feasible_acceleration(p: RobotParams, v: Array, u1: Array, xp=np) -> Array:
     """Clip u1 so the speed cannot leave [v_min, v_max] (neither limit is crossed, whatever its sign)."""
     tol = _EDGE_TOL * (p.v_max - p.v_min)
     u1 = xp.where(v >= p.v_max - tol, xp.minimum(u1, 0.0), u1)
     return xp.where(v <= p.v_min + tol, xp.maximum(u1, 0.0), u1)
 
 
-def car_f(p: CarParams, state: Array, control: Array, disturbance: Array, xp=np) -> Array:
-    """ẋ = f(x, u, d) of the dynamic Dubins car; u = (acceleration, curvature), d = (dx, dy) in m/s."""
+def robot_f(p: RobotParams, state: Array, control: Array, disturbance: Array, xp=np) -> Array:
+    """ẋ = f(x, u, d); u = (acceleration, curvature or turn rate), d = (dx, dy) in m/s."""
     v, theta = state[..., 2], state[..., 3]
     u1 = feasible_acceleration(p, v, control[..., 0], xp)
-    return xp.stack(
-        [v * xp.cos(theta) + disturbance[..., 0], v * xp.sin(theta) + disturbance[..., 1], u1, v * control[..., 1]],
-        axis=-1,
-    )
+    return xp.stack([v * xp.cos(theta) + disturbance[..., 0], v * xp.sin(theta) + disturbance[..., 1], u1,
+                     turn_gain(p, v, xp) * control[..., 1]], axis=-1)
 
 
-def car_optimal_control(p: CarParams, state: Array, grad: Array, xp=np) -> Array:
-    """argmax_u ∇V·f: u1 = a_max·sign(∂V/∂v) (kept feasible), u2 = κ_max·sign(v·∂V/∂θ).
+def optimal_control(p: RobotParams, state: Array, grad: Array, xp=np) -> Array:
+    """argmax_u ∇V·f: u1 = a_max·sign(∂V/∂v) (kept feasible), u2 = u₂max·sign(g(v)·∂V/∂θ).
 
     Where ∂V/∂v = 0 every u1 is optimal and u1 brakes towards v = 0 (−a_max·sign(v)): the safe control
-    never speeds up without a reason in V.  The v in u2's sign matters when reversing: at v < 0 the
-    same curvature turns the heading the other way (θ̇ = v·u2), so the safe turn flips with the
-    direction of travel."""
+    never speeds up without a reason in V.  The car's g(v) = v matters when reversing: at v < 0 the same
+    curvature turns the heading the other way, so its safe turn flips with the direction of travel."""
     v = state[..., 2]
     u1 = xp.where(grad[..., 2] < 0, -p.a_max, xp.where(grad[..., 2] > 0, p.a_max, -p.a_max * xp.sign(v)))
-    u2 = xp.where(v * grad[..., 3] < 0, -p.kappa_max, p.kappa_max)
+    u2 = xp.where(turn_gain(p, v, xp) * grad[..., 3] < 0, -p.turn_max, p.turn_max)
     return xp.stack([feasible_acceleration(p, v, u1, xp), u2], axis=-1)
 
 
@@ -205,9 +307,9 @@ def worst_direction(grad: Array, xp=np) -> Array:
     return xp.where(norm > 0, -g / xp.where(norm > 0, norm, 1.0), 0.0 * g)
 
 
-def car_worst_disturbance(p: CarParams, state: Array, grad: Array, xp=np) -> Array:
+def worst_disturbance(p: RobotParams, state: Array, grad: Array, xp=np) -> Array:
     """argmin_d ∇V·f over the ball ‖d‖ ≤ δ·|v| + d₀: d = −(δ·|v| + d₀)·∇ₓᵧV / ‖∇ₓᵧV‖."""
-    return car_disturbance_bound(p, state[..., 2], xp)[..., None] * worst_direction(grad, xp)
+    return disturbance_bound(p, state[..., 2], xp)[..., None] * worst_direction(grad, xp)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -19,7 +19,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from hjrno_ros.core.dynamics import CAR_MODEL, LEGACY_CAR_FIELDS, Air3DParams, CarParams
+from hjrno_ros.core.dynamics import LEGACY_CAR_FIELDS, ROBOT_MODELS, Air3DParams, CarParams, RobotParams
 from hjrno_ros.core.grids import GridSpec
 
 CARD_FORMAT = "hjrno-model-1"
@@ -129,17 +129,21 @@ def _grid(d: dict, where: str, family: str) -> GridSpec:
     return grid
 
 
-def _dynamics(d: dict, where: str, family: str) -> CarParams | Air3DParams:
-    """The card's robot model.  A car card names it (``dynamics.model``, :data:`DYNAMICS_FIELDS`); one
-    without ``model`` is a paper-model card {a_max, kappa_max, d_max, v_min, v_max} (d₀ = d_max, δ = 0)."""
+def _dynamics(d: dict, where: str, family: str) -> RobotParams | Air3DParams:
+    """The card's robot model.  A ground-robot card names it (``dynamics.model``: the car, :data:`DYNAMICS_FIELDS`,
+    or the differential drive with ``omega_max`` for ``kappa_max``); one without ``model`` is a paper-model card
+    {a_max, kappa_max, d_max, v_min, v_max} (d₀ = d_max, δ = 0)."""
     cls = FAMILIES[family][0]
     dyn = _field(d, "dynamics", dict, where)
     names = [f.name for f in dataclasses.fields(cls)]
     if cls is CarParams:
         if "model" in dyn or "d0" in dyn or "tracking_error" in dyn:
             model = _field(dyn, "model", str, where, "dynamics.")
-            if model != CAR_MODEL:
-                raise ValueError(f"{where}: field 'dynamics.model' must be {CAR_MODEL!r}, got {model!r}")
+            if model not in ROBOT_MODELS:
+                raise ValueError(f"{where}: field 'dynamics.model' must be one of {sorted(ROBOT_MODELS)}, got "
+                                 f"{model!r}")
+            cls = ROBOT_MODELS[model]
+            names = [f.name for f in dataclasses.fields(cls)]
         else:
             names = list(LEGACY_CAR_FIELDS)
     for name in names:
@@ -161,8 +165,8 @@ class ModelCard:
     inputs: dict
     grid: GridSpec  # the value grid (x, y, v, θ) the model predicts on
     window: tuple[float, float]  # x-y extent of the grid, m
-    dynamics: CarParams | Air3DParams  # the robot model the weights were trained for (the filter's model):
-    # CarParams for a car model (inputs.kind "car"), the filter's only kind
+    dynamics: RobotParams | Air3DParams  # the robot model the weights were trained for (the filter's model):
+    # CarParams or DiffDriveParams for a ground robot (inputs.kind "car"), the filter's only kind
     epsilon: float | None  # calibrated margin for the operator's value, m
     refine_epsilon: float | None  # calibrated margin for solver-refined tables, m
     refine_horizon: float | None  # simulated s of refinement from which refine_epsilon holds
@@ -225,7 +229,7 @@ class ModelCard:
                    training=dict(_optional(d, "training", dict, where, {})))
 
     @classmethod
-    def solver(cls, dynamics: CarParams, cell: float, speeds: int = 9, headings: int = 16, window: float = 10.0,
+    def solver(cls, dynamics: RobotParams, cell: float, speeds: int = 9, headings: int = 16, window: float = 10.0,
                epsilon: float = DEFAULT_EPSILON) -> dict:
         """A solver card's JSON: the car ``dynamics`` on an x-y grid of ``cell`` m (a ``window`` m square around
         the robot for the published value grid) with ``speeds`` × ``headings`` nodes; no weights.  The node

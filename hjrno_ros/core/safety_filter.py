@@ -1,4 +1,6 @@
-"""Least-restrictive safety filter for the dynamic Dubins car (no ROS).
+"""Safety-filter settings, the twist ↔ control mappings of the ground robots, and the modes that judge V and ∇V at
+the present state (no ROS).  The node's default mode, ``least_restrictive``, looks one period ahead and lives in
+:mod:`hjrno_ros.core.least_restrictive`.
 
 Given V and ∇V at the state (x, y, v, θ), three modes:
 
@@ -6,7 +8,7 @@ Given V and ∇V at the state (x, y, v, θ), three modes:
   control u* = argmax_u ∇V·f (docs/design.md, "Safety filter"), mapped to a velocity command.
 - ``blend``: mix nominal and safe commands linearly over V ∈ (ε, ε + blend_width] instead of
   switching, which reduces chattering.
-- ``qp``: the smallest change of the nominal control u = (a, κ), in units of the limits, that
+- ``qp``: the smallest change of the nominal control u = (a, κ or ω), in units of the limits, that
   keeps dV/dt ≥ −γ (V − ε) under the worst-case disturbance (a control-barrier condition on the
   HJ value function).  ∇V·f is affine in u, so this one-constraint QP over the control box has a
   closed-form solution; where no control satisfies it, u*.  Far from the boundary it passes
@@ -25,11 +27,18 @@ import math
 
 import numpy as np
 
-from hjrno_ros.core.dynamics import CarParams, car_disturbance_bound, car_optimal_control, feasible_acceleration
+from hjrno_ros.core.dynamics import (
+    CAR_MODEL,
+    RobotParams,
+    disturbance_bound,
+    feasible_acceleration,
+    optimal_control,
+    turn_gain,
+)
 
 TINY = 1e-12  # |∂(∇V·f)/∂z| below this is no lever: treated as zero (a subnormal one overflowed the qp's kinks)
 
-MODES = ("switch", "blend", "qp")
+MODES = ("least_restrictive", "switch", "blend", "qp")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,34 +69,45 @@ class Decision:
     clipped: bool = False  # the nominal was outside the model's limits
 
 
-def twist_to_control(params: CarParams, states: np.ndarray, twist: np.ndarray, dt: float) -> np.ndarray:
-    """What a base does with twists ``(n, 2)``: a = (v_cmd − v)/dt within ±a_max, κ = ω / v within ±κ_max
-    (v kept 1 mm/s away from zero with its sign, so reversing turns the right way)."""
+def twist_to_control(params: RobotParams, states: np.ndarray, twist: np.ndarray, dt: float) -> np.ndarray:
+    """What a base does with twists ``(n, 2)``: a = (v_cmd − v)/dt within ±a_max; the differential drive turns
+    at ω within ±ω_max, the car at the curvature κ = ω / v within ±κ_max (v kept 1 mm/s away from zero with its
+    sign, so reversing turns the right way)."""
     v = states[..., 2]
     accel = np.clip((twist[..., 0] - v) / dt, -params.a_max, params.a_max)
-    v_div = np.where(np.abs(v) < 1e-3, np.where(v < 0, -1e-3, 1e-3), v)
-    curvature = np.clip(twist[..., 1] / v_div, -params.kappa_max, params.kappa_max)
-    return np.stack([accel, curvature], -1)
+    if params.model == CAR_MODEL:
+        v = np.where(np.abs(v) < 1e-3, np.where(v < 0, -1e-3, 1e-3), v)
+    turn = np.clip(twist[..., 1] / turn_gain(params, v), -params.turn_max, params.turn_max)
+    return np.stack([accel, turn], -1)
 
 
-def control_to_twist(params: CarParams, states: np.ndarray, control: np.ndarray, dt: float) -> np.ndarray:
-    """The twists ``(n, 2)`` that make such a base apply ``control`` (a, κ) over one period ``dt``."""
+def control_to_twist(params: RobotParams, states: np.ndarray, control: np.ndarray, dt: float) -> np.ndarray:
+    """The twists ``(n, 2)`` that make such a base apply ``control`` (a, κ or ω) over one period ``dt``."""
     v = states[..., 2]
-    return np.stack([np.clip(v + control[..., 0] * dt, params.v_min, params.v_max), v * control[..., 1]], -1)
+    return np.stack([np.clip(v + control[..., 0] * dt, params.v_min, params.v_max),
+                     turn_gain(params, v) * control[..., 1]], -1)
 
 
-def clip_to_limits(params: CarParams, states: np.ndarray, twist: np.ndarray, dt: float) -> np.ndarray:
-    """Twists ``(..., 2)`` clipped to what the model vouches for over one period ``dt``: linear in
-    [v_min, v_max]; |angular| ≤ κ_max·max(|v|, |v′|), with v′ the speed the base can reach toward the
-    command within a_max·dt (θ̇ = v·u₂, |u₂| ≤ κ_max)."""
+def turn_bound(params: RobotParams, states: np.ndarray, linear: np.ndarray, dt: float) -> np.ndarray:
+    """The largest |angular| (rad/s) the model vouches for with the linear command ``linear`` over one period:
+    ω_max for the differential drive; κ_max·max(|v|, |v′|) for the car, with v′ the speed the base can reach
+    toward the command within a_max·dt (θ̇ = v·κ)."""
+    if params.model != CAR_MODEL:
+        return np.full(np.shape(linear), params.turn_max)
     v = states[..., 2]
-    linear = np.clip(twist[..., 0], params.v_min, params.v_max)
     reach = np.clip(linear, v - params.a_max * dt, v + params.a_max * dt)
-    bound = params.kappa_max * np.maximum(np.abs(v), np.abs(reach))
+    return params.kappa_max * np.maximum(np.abs(v), np.abs(reach))
+
+
+def clip_to_limits(params: RobotParams, states: np.ndarray, twist: np.ndarray, dt: float) -> np.ndarray:
+    """Twists ``(..., 2)`` clipped to what the model vouches for over one period ``dt``: linear in
+    [v_min, v_max], angular within :func:`turn_bound`."""
+    linear = np.clip(twist[..., 0], params.v_min, params.v_max)
+    bound = turn_bound(params, states, linear, dt)
     return np.stack([linear, np.clip(twist[..., 1], -bound, bound)], -1)
 
 
-def sampling_margin(params: CarParams, dt: float) -> float:
+def sampling_margin(params: RobotParams, dt: float) -> float:
     """m: how far V can fall while one command holds for ``dt`` (the filter decides once per period): the robot
     and the disturbance move it at most (1 + δ)·|v| + d₀ at the top speed, and V is 1-Lipschitz in (x, y).  A
     small fast-turning robot needs it: a TurtleBot3 covers 1.1 cm per 50 ms, more than its scaled ε (0.8 cm)."""
@@ -95,7 +115,7 @@ def sampling_margin(params: CarParams, dt: float) -> float:
     return float(((1 + params.tracking_error) * speed + params.d0) * dt)
 
 
-def within_nominal_speed(params: CarParams, twist: np.ndarray, nominal: np.ndarray) -> np.ndarray:
+def within_nominal_speed(params: RobotParams, twist: np.ndarray, nominal: np.ndarray) -> np.ndarray:
     """For a robot that rests safely (d₀ = 0: nothing moves it at v = 0), the linear command stays between 0 and
     the nominal's: the filter brakes or turns, never adds speed or reverses against the nominal.  Its model's V
     never gains from speed (docs/design.md, "Robot models"), so this only removes what a learned V's noise adds.
@@ -106,14 +126,14 @@ def within_nominal_speed(params: CarParams, twist: np.ndarray, nominal: np.ndarr
     return np.stack([linear, twist[..., 1]], -1)
 
 
-def safe_twist(params: CarParams, state: np.ndarray, grad: np.ndarray, dt: float) -> np.ndarray:
+def safe_twist(params: RobotParams, state: np.ndarray, grad: np.ndarray, dt: float) -> np.ndarray:
     """The optimal safe control at ``state`` (``(4,)`` or ``(n, 4)``) as (linear, angular) commands."""
     state = np.asarray(state, float)
-    twist = control_to_twist(params, state, car_optimal_control(params, state, np.asarray(grad, float)), dt)
+    twist = control_to_twist(params, state, optimal_control(params, state, np.asarray(grad, float)), dt)
     return stops_at_rest(params, state, twist)
 
 
-def stops_at_rest(params: CarParams, states: np.ndarray, twist: np.ndarray) -> np.ndarray:
+def stops_at_rest(params: RobotParams, states: np.ndarray, twist: np.ndarray) -> np.ndarray:
     """For a robot that rests safely (d₀ = 0) the safe linear command stays between 0 and the present speed: it
     brakes to rest, never through it.  Rest is the safest speed of this model (V(x, y, 0, θ) = l(x, y) ≥ V at any
     other speed), but ∂V/∂v has a kink there, and a one-sided gradient of a reversing robot's table (stopped:
@@ -133,7 +153,7 @@ def nominal_weight(settings: FilterSettings, value: np.ndarray) -> np.ndarray:
     return np.clip((value - settings.epsilon) / settings.blend_width, 0.0, 1.0)
 
 
-def minimal_change(params: CarParams, settings: FilterSettings, states: np.ndarray, values: np.ndarray,
+def minimal_change(params: RobotParams, settings: FilterSettings, states: np.ndarray, values: np.ndarray,
                    grads: np.ndarray, nominal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The ``qp`` mode on controls: (u ``(n, 2)``, changed ``(n,)``) for nominal controls ``(n, 2)``.
 
@@ -141,13 +161,13 @@ def minimal_change(params: CarParams, settings: FilterSettings, states: np.ndarr
     projection path, and g·z(λ) is piecewise linear in λ with a kink where each axis saturates.
     """
     v = states[:, 2]
-    half = np.array([params.a_max, params.kappa_max])
-    g = np.column_stack([grads[:, 2], grads[:, 3] * v]) * half  # ∂(∇V·f)/∂z
+    half = np.array([params.a_max, params.turn_max])
+    g = np.column_stack([grads[:, 2], grads[:, 3] * turn_gain(params, v)]) * half  # ∂(∇V·f)/∂z
     at_limit = feasible_acceleration(params, v, np.sign(g[:, 0]), np) == 0  # speed limit: a cannot help
     g[:, 0] = np.where(at_limit, 0.0, g[:, 0])
     g = np.where(np.abs(g) < TINY, 0.0, g)
     drift = grads[:, 0] * v * np.cos(states[:, 3]) + grads[:, 1] * v * np.sin(states[:, 3])
-    drift -= car_disturbance_bound(params, v) * np.linalg.norm(grads[:, :2], axis=-1)  # worst-case disturbance
+    drift -= disturbance_bound(params, v) * np.linalg.norm(grads[:, :2], axis=-1)  # worst-case disturbance
     b = -settings.decay_rate * (values - settings.epsilon) - drift
     z0 = np.clip(nominal / half, -1.0, 1.0)
     safe_g = np.where(g == 0, 1.0, g)
@@ -167,7 +187,7 @@ def stop(value: float, reason: str) -> Decision:
     return Decision(0.0, 0.0, True, value, reason)
 
 
-def filter_command(params: CarParams, settings: FilterSettings, state: np.ndarray, value: float, grad: np.ndarray,
+def filter_command(params: RobotParams, settings: FilterSettings, state: np.ndarray, value: float, grad: np.ndarray,
                    linear: float, angular: float) -> Decision:
     """The command to send, given the nominal (linear, angular) and V, ∇V at ``state`` (x, y, v, θ)."""
     if not (np.all(np.isfinite(state)) and math.isfinite(value) and np.all(np.isfinite(grad))):
@@ -187,7 +207,7 @@ def filter_command(params: CarParams, settings: FilterSettings, state: np.ndarra
     return Decision(float(out[0, 0]), float(out[0, 1]), True, float(value), reason, clipped)
 
 
-def filter_batch(params: CarParams, settings: FilterSettings, states: np.ndarray, values: np.ndarray,
+def filter_batch(params: RobotParams, settings: FilterSettings, states: np.ndarray, values: np.ndarray,
                  grads: np.ndarray, nominal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """:func:`filter_command` for ``n`` robots at once: commands ``(n, 2)`` and intervened ``(n,)``.
 

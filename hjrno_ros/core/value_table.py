@@ -97,11 +97,19 @@ class ReversingTable:
             raise ValueError(f"a reversing table needs a car table over v >= 0, got speeds from {table.grid.lo}")
         self.table, self.grid = table, table.grid
 
-    def value_and_gradient(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _forward(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(the forward states, which were reversing)."""
         s = np.array(states, np.float64, copy=True)
         back = s[..., 2] < 0
         s[..., 2] = np.abs(s[..., 2])
         s[..., 3] = np.where(back, s[..., 3] + np.pi, s[..., 3])
+        return s, back
+
+    def inside(self, states: np.ndarray, axes: tuple[int, ...] | None = None) -> np.ndarray:
+        return self.table.inside(self._forward(states)[0], axes)
+
+    def value_and_gradient(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        s, back = self._forward(states)
         value, grad = self.table.value_and_gradient(s)
         grad[..., 2] = np.where(back, -grad[..., 2], grad[..., 2])
         return value, grad
@@ -111,3 +119,10 @@ class ReversingTable:
 
     def gradient(self, states: np.ndarray) -> np.ndarray:
         return self.value_and_gradient(states)[1]
+
+
+def value_table(grid: GridSpec, values: np.ndarray) -> ValueTable | ReversingTable:
+    """``values`` on ``grid`` as a table; a whole forward-speed table (periodic θ, v from 0) also answers reversing
+    states, by symmetry."""
+    table = ValueTable(grid, values)
+    return ReversingTable(table) if grid.periodic and grid.lo[2] == 0 else table

@@ -135,7 +135,8 @@ class ExperimentConfig:
         if self.accel_ratio:  # drawn from its own stream: the geometry of sample i does not depend on it
             lo, hi = np.log(self.accel_ratio)
             rng = np.random.default_rng([seed, 0xACCE1])
-            options.update(a_max=float(np.exp(rng.uniform(lo, hi))), kappa_max=1.0, v_max=1.0)
+            turn = "omega_max" if options.get("robot") == "diff_drive" else "kappa_max"
+            options.update({"a_max": float(np.exp(rng.uniform(lo, hi))), turn: 1.0, "v_max": 1.0})
         return make_scenario(self.family, seed, **options)
 
     def target(self, scenario: Scenario, grid: GridSpec) -> np.ndarray:

@@ -29,7 +29,15 @@ from hjrno_ros.learning.slices import InputSpec, param_value
 def predict_table(model, spec: InputSpec, grid, target: np.ndarray, params: np.ndarray | None = None,
                   batch: int = 64, shift: float = 0.0) -> np.ndarray:
     """V_pred on the whole grid of one sample (l given on the same grid), in metres; with ``shift`` r the
-    model runs on target + r and r comes off its output (``held_out.INFLATION_AT``)."""
+    model runs on target + r and r comes off its output (``held_out.INFLATION_AT``).  A table model predicts
+    it in one pass."""
+    if spec.table:
+        if tuple(grid.shape[2:]) != spec.table:
+            raise ValueError(f"a table model of (v, theta) shape {spec.table} cannot predict a {grid.shape} grid")
+        v0 = target[None, :, :, 0, 0] + np.float32(shift)
+        p = None if params is None else params[None]
+        pred = model(spec.inputs(v0, np.zeros(1), np.zeros(1), p))[0].numpy() * spec.value_scale - np.float32(shift)
+        return np.ascontiguousarray(np.moveaxis(pred.reshape(*spec.table, *grid.shape[:2]), (0, 1), (2, 3)))
     angle_axis = grid.ndim - 1
     rest = grid.shape[2:]
     index = np.stack(np.unravel_index(np.arange(int(np.prod(rest))), rest), -1)
@@ -92,7 +100,7 @@ def split_metrics(model, spec: InputSpec, split, limit: int | None = None) -> di
 
 
 def inference_ms(model, spec: InputSpec, shape: tuple[int, int], repeats: int = 30) -> float:
-    """Median wall time of one 2D slice (batch 1) through the model, ms."""
+    """Median wall time of one forward pass of batch 1, ms: one 2D slice, or a table model's whole table."""
     x = spec.inputs(np.zeros((1, *shape), np.float32), np.zeros(1), np.zeros(1),
                     np.ones((1, len(spec.param_ranges)), np.float32) if spec.param_ranges else None)
     return median_ms(model, x, repeats)
@@ -137,6 +145,7 @@ def _evaluate_folder(model, card: ModelCard, stem: Path, data: Path, train_limit
     tr, te = split_metrics(model, spec, train, train_limit), split_metrics(model, spec, test)
     solve_s = float(np.mean([r["wall_time"] for r in train.reports + test.reports]))
     infer = inference_ms(model, spec, tuple(test.grid.shape[:2]))
+    table_ms = infer if spec.table else infer * int(np.prod(test.grid.shape[2:]))  # every slice of the solved table
     weights, _ = checkpoint.paths(stem)
     return {
         "experiment": test.config.name,
@@ -160,6 +169,8 @@ def _evaluate_folder(model, card: ModelCard, stem: Path, data: Path, train_limit
         "solve_s": round(solve_s, 1),
         "infer_ms": round(infer, 2),
         "speedup": round(1e3 * solve_s / infer),
+        "table_ms": round(table_ms, 2),
+        "table_speedup": round(1e3 * solve_s / table_ms),
         "train_samples_scored": tr["n"],
     }
 
@@ -176,7 +187,7 @@ def averaged(model) -> bool:
     return isinstance(model, SymmetryAverage)
 
 
-CARD_METRICS = ("test_rel_l2", "test_iou", "test_false_safe", "infer_ms", "checkpoint_MB")
+CARD_METRICS = ("test_rel_l2", "test_iou", "test_false_safe", "infer_ms", "table_ms", "checkpoint_MB")
 
 
 def record_in_card(stem: str | Path, rows: list[dict]) -> Path:
@@ -205,7 +216,9 @@ def record(row: dict, out: str | Path) -> Path:
     lines = ["# Operator evaluation", "",
              "Written by `hjrno evaluate`. Errors over whole value tables (all v, θ slices) of the test split; "
              "train error on up to `train_samples_scored` training samples. solve_s: mean ground-truth solve of "
-             "one sample on this machine; infer_ms: one 2D slice, batch 1, CPU; speedup = solve / one slice; "
+             "one sample on this machine; infer_ms: one forward pass, batch 1, CPU (one 2D slice; a table model's "
+             "whole table); speedup = solve / infer_ms; table_ms: every slice of a table (slice models: infer_ms "
+             "times the slices), table_speedup = solve / table_ms; "
              "test_rms_error: RMS of V_pred − V∞ in the table's units; test_edge_error_share: the part of the squared "
              f"error within {EDGE_CELLS} cells of the window's edge.", "",
              "| " + " | ".join(keys) + " |", "|" + " --- |" * len(keys)]

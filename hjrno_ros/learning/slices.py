@@ -3,9 +3,13 @@
 A slice fixes every state variable but (x, y): the car's (v, θ), Air3D's ψ.  Input channels are
 the V0 slice, then constants: normalised v, cos θ, sin θ (car) or cos ψ, sin ψ (Air3D), then the
 normalised varying parameters (a_max, κ_max for the parametric family; ``log_a_max``, the logarithm of
-a_max/(κ_max·v_max²) in model units, for datasets drawn with an ``accel_ratio`` range).  Values are divided by
+a_max/(v_max·ω_top) in model units, for datasets drawn with an ``accel_ratio`` range).  Values are divided by
 ``value_scale`` (m).  :class:`InputSpec` is stored in the model card, so the node builds exactly
 the inputs the model was trained on.
+
+A *table* model (``InputSpec.table`` = (nv, nθ)) predicts the whole (v, θ) table of a ground robot in one
+forward pass: its inputs are V0 and the parameters only, its output has one channel per (v, θ) node of the
+card's grid, channel iv·nθ + iθ (:class:`TableSet`, :func:`table_symmetry`).
 """
 
 from __future__ import annotations
@@ -24,11 +28,18 @@ class InputSpec:
     value_scale: float  # m: V0 and V are divided by this
     v_range: tuple[float, float] = (0.0, 1.0)  # car only
     param_ranges: dict = dataclasses.field(default_factory=dict)  # name -> (lo, hi), e.g. a_max, kappa_max
+    table: tuple[int, int] | None = None  # (nv, nθ): the model outputs the whole (v, θ) table at once
 
     @property
     def channels(self) -> list[str]:
+        if self.table:
+            return ["v0", *self.param_ranges]
         angle = ["cos_theta", "sin_theta"] if self.kind == "car" else ["cos_psi", "sin_psi"]
         return ["v0"] + (["v"] if self.kind == "car" else []) + angle + list(self.param_ranges)
+
+    @property
+    def out_channels(self) -> int:
+        return int(np.prod(self.table)) if self.table else 1
 
     @property
     def in_channels(self) -> int:
@@ -39,12 +50,18 @@ class InputSpec:
         d["v_range"] = list(self.v_range)
         d["param_ranges"] = {k: list(v) for k, v in self.param_ranges.items()}
         d["channels"] = self.channels
+        if self.table:
+            d["table"] = list(self.table)
+        else:  # cards of single-slice models keep the fields they always had
+            d.pop("table")
         return d
 
     @classmethod
     def from_dict(cls, d: dict) -> InputSpec:
+        table = d.get("table")
         return cls(d["kind"], float(d["value_scale"]), tuple(d.get("v_range", (0.0, 1.0))),
-                   {k: tuple(v) for k, v in d.get("param_ranges", {}).items()})
+                   {k: tuple(v) for k, v in d.get("param_ranges", {}).items()},
+                   (int(table[0]), int(table[1])) if table else None)
 
     def inputs(self, v0: np.ndarray, v: np.ndarray, angle: np.ndarray, params: np.ndarray | None = None
                ) -> torch.Tensor:
@@ -53,13 +70,16 @@ class InputSpec:
         v0 = np.asarray(v0, np.float32)
         b, nx, ny = v0.shape
         consts = []
-        if self.kind == "car":
+        if self.table:
+            v, angle = np.zeros(0), np.zeros(0)
+        elif self.kind == "car":
             lo, hi = self.v_range
             consts.append(2.0 * (np.asarray(v, np.float32) - lo) / (hi - lo) - 1.0)
-        consts += [np.cos(angle), np.sin(angle)]
+        if not self.table:
+            consts += [np.cos(angle), np.sin(angle)]
         for i, (lo, hi) in enumerate(self.param_ranges.values()):
             consts.append(2.0 * (np.asarray(params)[:, i] - lo) / (hi - lo) - 1.0)
-        c = np.stack(consts, 1).astype(np.float32)  # (B, K)
+        c = np.stack(consts, 1).astype(np.float32) if consts else np.zeros((b, 0), np.float32)  # (B, K)
         x = np.empty((b, 1 + c.shape[1], nx, ny), np.float32)
         x[:, 0] = v0 / self.value_scale
         x[:, 1:] = c[:, :, None, None]
@@ -71,16 +91,22 @@ def param_value(params: dict, name: str) -> float:
     return float(np.log(params[name[4:]])) if name.startswith("log_") else float(params[name])
 
 
-def spec_for(split) -> InputSpec:
-    """The input spec of a loaded dataset split (family decides the constant channels)."""
+def spec_for(split, table: bool = False) -> InputSpec:
+    """The input spec of a loaded dataset split (family decides the constant channels); ``table``: a model of the
+    whole (v, θ) table (a ground robot whose target does not depend on v)."""
     grid, family = split.grid, split.config.family
     scale = 0.5 * max(grid.hi[0] - grid.lo[0], grid.hi[1] - grid.lo[1])
     if family == "air3d":
+        if table:
+            raise ValueError("a table model is for the ground robots, not Air3D")
         return InputSpec("air3d", scale)
+    if table and family in ("velocity", "parametric"):
+        raise ValueError(f"a table model needs one target for every speed and fixed limits; the {family} family "
+                         "has neither")
     params = {"a_max": (0.5, 1.5), "kappa_max": (0.5, 1.5)} if family == "parametric" else {}
     if split.config.accel_ratio:
         params = {"log_a_max": tuple(float(np.log(r)) for r in split.config.accel_ratio)}
-    return InputSpec("car", scale, (grid.lo[2], grid.hi[2]), params)
+    return InputSpec("car", scale, (grid.lo[2], grid.hi[2]), params, tuple(grid.shape[2:]) if table else None)
 
 
 def symmetry(images: np.ndarray, theta: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -98,6 +124,67 @@ def symmetry(images: np.ndarray, theta: np.ndarray, k: np.ndarray) -> tuple[np.n
         out[b] = np.rot90(image, kb % 4)
     turned = np.where(np.asarray(k) >= 4, -theta, theta) + (np.asarray(k) % 4) * (np.pi / 2)
     return out, wrap_angle(turned)
+
+
+def heading_permutation(n: int, k: int) -> np.ndarray:
+    """For a periodic heading axis of ``n`` nodes from −π: the node each heading moves to under D4 element ``k``
+    (:func:`symmetry`), so ``out[..., perm[j], :, :] = table[..., j, :, :]``.  Needs n divisible by 4."""
+    if n % 4:
+        raise ValueError(f"the D4 symmetries need a heading count divisible by 4, got {n}")
+    step = 2 * np.pi / n
+    headings = -np.pi + step * np.arange(n)
+    _, turned = symmetry(np.zeros((n, 1, 1), np.float32), headings, np.full(n, k))
+    return np.round((turned + np.pi) / step).astype(int) % n
+
+
+def table_symmetry(tables: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """D4 element ``k`` (one per item) applied to whole tables ``(B, nv, nθ, Nx, Ny)``: the x-y images move as in
+    :func:`symmetry` and each slice moves to its transformed heading."""
+    out = np.empty_like(tables)
+    b, nv, nt, nx, ny = tables.shape
+    for i, ki in enumerate(np.asarray(k)):
+        images = tables[i].reshape(nv * nt, nx, ny)
+        moved, _ = symmetry(images, np.zeros(nv * nt), np.full(nv * nt, ki))
+        out[i][:, heading_permutation(nt, int(ki))] = moved.reshape(nv, nt, nx, ny)
+    return out
+
+
+class TableSet:
+    """All samples of a split as whole-table items for a table model: inputs (V0, parameters), targets
+    ``(B, nv·nθ, Nx, Ny)``."""
+
+    def __init__(self, split, spec: InputSpec):
+        if spec.table is None or tuple(split.grid.shape[2:]) != spec.table:
+            raise ValueError(f"a table set needs a table spec of the split's (v, θ) shape {split.grid.shape[2:]}")
+        self.split, self.spec = split, spec
+        self.params = np.array([[param_value(s.params, k) for k in spec.param_ranges] for s in split.scenarios],
+                               np.float32)
+
+    def __len__(self) -> int:
+        return len(self.split.target)
+
+    def check_symmetric(self) -> None:
+        """Raise unless :func:`table_symmetry` maps this split's tables onto exact samples."""
+        SliceSet.check_symmetric(self)  # type: ignore[arg-type]
+        heading_permutation(self.split.grid.shape[3], 1)
+
+    def batch(self, index: np.ndarray, sym: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Inputs and targets of samples ``index``; ``sym`` (one 0..7 per item): apply the D4 element."""
+        index = np.asarray(index)
+        v0 = np.asarray(self.split.target[index, :, :, 0, 0], np.float32)
+        y = np.moveaxis(np.asarray(self.split.value[index], np.float32), (3, 4), (1, 2))
+        if sym is not None:
+            v0, _ = symmetry(v0, np.zeros(len(index)), sym)
+            y = table_symmetry(y, sym)
+        params = self.params[index] if self.spec.param_ranges else None
+        x = self.spec.inputs(v0, np.zeros(len(index)), np.zeros(len(index)), params)
+        b, nv, nt, nx, ny = y.shape
+        return x, torch.from_numpy(np.ascontiguousarray(y.reshape(b, nv * nt, nx, ny)) / self.spec.value_scale)
+
+
+def as_slices(t: torch.Tensor) -> torch.Tensor:
+    """``(B, C, Nx, Ny)`` → ``(B·C, 1, Nx, Ny)``: a table model's output scored slice by slice like a slice model's."""
+    return t.reshape(-1, 1, *t.shape[2:])
 
 
 class SliceSet:

@@ -22,11 +22,20 @@ import numpy as np
 import torch
 
 from hjrno_ros import versions
-from hjrno_ros.core.similarity import NUMBERS, Coverage
+from hjrno_ros.core.similarity import Coverage, number_names
 from hjrno_ros.datasets.dataset import load_split
 from hjrno_ros.learning import checkpoint
 from hjrno_ros.learning.operators import build_model, count_parameters
-from hjrno_ros.learning.slices import SliceSet, SliceUnion, angle_difference_l2, level_set_weight, relative_l2, spec_for
+from hjrno_ros.learning.slices import (
+    SliceSet,
+    SliceUnion,
+    TableSet,
+    angle_difference_l2,
+    as_slices,
+    level_set_weight,
+    relative_l2,
+    spec_for,
+)
 
 DEFAULT_MODEL_CONFIGS = {
     "fno": {"width": 24, "modes": 12, "n_layers": 4},
@@ -54,10 +63,13 @@ class TrainConfig:
     level_set_width: float = 0.2  # m: how far from V∞ = 0 that weight reaches
     angle_pair_weight: float = 0.0  # weight of the loss on V's change to the next angle (slices.angle_difference_l2)
     init: str = ""  # model stem to start from (fine-tuning: its weights, a fresh optimiser and schedule)
+    table: bool = False  # one output channel per (v, θ) node: the whole table in one pass (slices.TableSet)
 
     def resume_key(self) -> dict:
         d = dataclasses.asdict(self)
         d.pop("max_minutes")
+        if not self.table:  # checkpoints of slice models written before tables existed still resume
+            d.pop("table")
         return d
 
 
@@ -108,16 +120,22 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
         if not split.scenarios:
             raise ValueError(f"{split.config.name} {split.attrs['split']}: no converged samples to train or test on "
                              "(--allow-unconverged uses the flagged ones)")
-    spec = spec_for(train_splits[0])
-    if any(spec_for(s) != spec for s in train_splits):
+    spec = spec_for(train_splits[0], cfg.table)
+    if any(spec_for(s, cfg.table) != spec for s in train_splits):
         raise ValueError("datasets to combine need the same inputs (car vs Air3D, parameters, window)")
-    train_set = SliceUnion([SliceSet(s, spec) for s in train_splits])
+    if cfg.table and (cfg.model != "fno" or cfg.angle_pair_weight):
+        raise ValueError("a table model is an FNO (--model fno) and has no angle pairs (every heading is in its "
+                         "output)")
+    items = TableSet if cfg.table else SliceSet
+    train_set = SliceUnion([items(s, spec) for s in train_splits])
     if cfg.augment:
         for part in train_set.parts:
             part.check_symmetric()
-    test_set = SliceUnion([SliceSet(s, spec) for s in test_splits])
+    test_set = SliceUnion([items(s, spec) for s in test_splits])
     torch.manual_seed(cfg.seed)
     model_config = {**DEFAULT_MODEL_CONFIGS[cfg.model], **cfg.model_config, "in_channels": spec.in_channels}
+    if cfg.table:
+        model_config["out_channels"] = spec.out_channels
     model = build_model(cfg.model, **model_config)
     base_card = _initial_weights(cfg.init, model, spec) if cfg.init else None
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -153,7 +171,7 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
                 index = np.concatenate([index, train_set.angle_neighbour(index)])
                 k = None if k is None else np.tile(k, 2)
             x, y = train_set.batch(index, k)
-            pred = model(x)
+            pred, y = as_slices(model(x)), as_slices(y)
             weight = level_set_weight(y, cfg.level_set_weight, width) if cfg.level_set_weight else None
             loss = relative_l2(pred, y, weight)
             if cfg.angle_pair_weight:
@@ -167,7 +185,7 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
             opt.step()
             sched.step()
             losses.append(relative_l2(pred.detach(), y).item())  # the plain metric, whatever the loss
-        test_loss = evaluate_slices(model, test_set, cfg.seed)
+        test_loss = evaluate_slices(model, test_set, cfg.seed, *((32, 8) if cfg.table else (512, 64)))
         history.append({"epoch": epoch + 1, "train_rel_l2": float(np.mean(losses)), "test_rel_l2": test_loss,
                         "wall_s": time.perf_counter() - t0})
         if progress:
@@ -223,10 +241,10 @@ def _resume(cfg: TrainConfig, model, opt, sched, steps_per_epoch: int) -> tuple[
 
 @torch.no_grad()
 def evaluate_slices(model, slice_set: SliceUnion, seed: int, n: int = 512, batch: int = 64) -> float:
-    """Relative L2 on a fixed random subset of slices (a cheap per-epoch test score)."""
+    """Relative L2 on a fixed random subset of slices (of tables, for a table model; a cheap per-epoch test score)."""
     model.eval()
     index = np.random.default_rng([seed, 999]).choice(len(slice_set), min(n, len(slice_set)), replace=False)
-    scores = [relative_l2(model(x), y).item() * len(x) for x, y in
+    scores = [relative_l2(as_slices(model(x)), as_slices(y)).item() * len(x) for x, y in
               (slice_set.batch(index[i:i + batch]) for i in range(0, len(index), batch))]
     return float(sum(scores) / len(index))
 
@@ -235,10 +253,10 @@ def _card(cfg: TrainConfig, model, spec, folders: list[Path], tested: list[Path]
           test_splits: list, command: str | None) -> dict:
     grid = train_splits[0].grid
     car = train_splits[0].scenarios[0].dynamics_params()
-    if "log_a_max" in spec.param_ranges:  # conditioned: the card's own car is the reference robot a = κ = v_max = 1
+    if "log_a_max" in spec.param_ranges:  # conditioned: the card's own robot is the reference a = κ (ω) = v_max = 1
         car = dataclasses.replace(car, a_max=1.0)
-    coverage = ({n: list(r) for n, r in zip(NUMBERS, Coverage.of(car, spec.param_ranges).ranges, strict=True)}
-                if spec.kind == "car" else None)
+    coverage = ({n: list(r) for n, r in zip(number_names(car.model), Coverage.of(car, spec.param_ranges).ranges,
+                                            strict=True)} if spec.kind == "car" else None)
     return {
         "kind": cfg.model,
         "config": model.config,

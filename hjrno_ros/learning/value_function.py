@@ -1,13 +1,16 @@
-"""A trained operator behind one call: an obstacle window + the robot state → V and ∇V.
+"""A trained operator behind one call: an obstacle window + the robot state → a value table around the robot.
 
 The model was trained on windows of fixed physical size (``window``, from its card) centred on
 the origin; at run time the window is centred on the robot, axis-aligned with the map frame, so
 headings stay map-frame headings.  V0 is the signed distance sampled at the model's x-y nodes
-(the card's grid: the FNO and TNO would take other resolutions of the window, the CNN would not).  For the
-filter, the operator predicts the 2 × 2 (v, θ) slices half a grid step either side of the robot's
-speed and heading (one grid cell centred on the state, as the solver's grid interpolates), and a
-:class:`ValueTable` over that stencil gives V and ∇V (x, y, v, θ) at the state: central differences
-over one step in v and θ.  4 slices, not the 9 of a 3 × 3 stencil: inference costs 4/9 as much.
+(the card's grid: the FNO and TNO would take other resolutions of the window, the CNN would not).
+
+A *table* model predicts every (v, θ) node of the card's grid in one forward pass: the node then holds the
+whole table of the window, and every speed and heading the robot can reach is in it.  For a robot that rests
+safely (d₀ = 0) the rest slice is not predicted but exact, V(x, y, 0, θ) = V0(x, y) (docs/design.md, "Robot
+models").  A *slice* model predicts the 2 × 2 (v, θ) slices half a grid step either side of the robot's
+speed and heading (one grid cell centred on the state, as the solver's grid interpolates): 4 slices, not the 9
+of a 3 × 3 stencil.  Either way a :class:`ValueTable` gives V and ∇V (x, y, v, θ) at any state it covers.
 """
 
 from __future__ import annotations
@@ -17,9 +20,9 @@ import dataclasses
 import numpy as np
 import torch
 
-from hjrno_ros.core.dynamics import CarParams
+from hjrno_ros.core.dynamics import RobotParams
 from hjrno_ros.core.grids import GridSpec
-from hjrno_ros.core.value_table import ValueTable
+from hjrno_ros.core.value_table import ReversingTable, ValueTable, value_table
 from hjrno_ros.learning import checkpoint
 from hjrno_ros.learning.operators.cnn import CNN
 from hjrno_ros.learning.slices import InputSpec, param_value
@@ -47,8 +50,9 @@ class LearnedValueFunction:
         if self.spec.kind != "car":
             raise ValueError(f"{stem}: the filter needs a car model, this one is {self.spec.kind!r}")
         self.grid: GridSpec = self.card.grid
-        self.params: CarParams = self.card.dynamics
+        self.params: RobotParams = self.card.dynamics
         self.epsilon = self.card.epsilon  # None when uncalibrated; the filter's default: self.card.margin()
+        self.whole_table = self.spec.table is not None  # every (v, θ) of the window in one pass
 
     @property
     def window(self) -> tuple[float, float]:
@@ -69,16 +73,37 @@ class LearnedValueFunction:
     @torch.no_grad()
     def predict(self, v0: np.ndarray, speeds: np.ndarray, headings: np.ndarray,
                 params: np.ndarray | None = None) -> np.ndarray:
-        """V slices (K, Nx, Ny) in metres for V0 (Nx, Ny) in metres at K (speed, heading) pairs."""
-        v0 = np.asarray(v0, np.float32)
-        if v0.ndim != 2 or not np.all(np.isfinite(v0)):
-            raise ValueError(f"V0 must be a finite 2-D array, got shape {v0.shape}")
+        """V slices (K, Nx, Ny) in metres for V0 (Nx, Ny) in metres at K (speed, heading) pairs (a slice model)."""
+        v0 = self._checked(v0)
+        if self.whole_table:
+            raise ValueError("a table model predicts whole tables: use table()")
         k = len(speeds)
         x = self.spec.inputs(np.broadcast_to(v0, (k, *v0.shape)), np.asarray(speeds), np.asarray(headings), params)
         out = self.model(x.to(self.device))[:, 0].cpu().numpy() * self.spec.value_scale
         return np.minimum(out, v0[None])  # V∞ ≤ V0 holds for the true value function
 
-    def condition(self, robot: CarParams | None = None) -> np.ndarray | None:
+    @staticmethod
+    def _checked(v0: np.ndarray) -> np.ndarray:
+        v0 = np.asarray(v0, np.float32)
+        if v0.ndim != 2 or not np.all(np.isfinite(v0)):
+            raise ValueError(f"V0 must be a finite 2-D array, got shape {v0.shape}")
+        return v0
+
+    @torch.no_grad()
+    def table(self, v0: np.ndarray, robot: RobotParams | None = None) -> np.ndarray:
+        """The whole table V[ix, iy, iv, iθ] in metres on the card's grid for V0 (Nx, Ny), one forward pass (a table
+        model); ``robot``: a covered robot in the card's units.  V ≤ V0, and the rest slice is V0 where d₀ = 0."""
+        v0 = self._checked(v0)
+        params = self.condition(robot)
+        out = self.model(self.spec.inputs(v0[None], np.zeros(1), np.zeros(1), params).to(self.device))
+        nv, nt = self.spec.table
+        table = np.moveaxis(out[0].cpu().numpy().reshape(nv, nt, *v0.shape), (0, 1), (2, 3)) * self.spec.value_scale
+        table = np.minimum(table, v0[:, :, None, None])
+        if self.params.d0 == 0 and self.grid.lo[2] == 0:
+            table[:, :, 0, :] = v0[:, :, None]
+        return table
+
+    def condition(self, robot: RobotParams | None = None) -> np.ndarray | None:
         """The parameter channels for ``robot`` in the card's units (default: the card's own car), (1, P)."""
         names = list(self.spec.param_ranges)
         if not names:
@@ -86,14 +111,20 @@ class LearnedValueFunction:
         values = dataclasses.asdict(robot or self.params)
         return np.array([[param_value(values, name) for name in names]], np.float32)
 
-    def local_table(self, v0: np.ndarray, center: tuple[float, float], v: float, theta: float,
-                    robot: CarParams | None = None) -> ValueTable:
-        """V over the window × a 2 × 2 (v, θ) stencil (v ± dv/2, θ ± dθ/2, dv and dθ the card grid's
-        steps; v kept within [v_min, v_max]): evaluate V and ∇V at the state.  ``robot``: a covered robot in
-        the card's units (a conditioned model's channels).  A forward-only card answers a reversing state by
-        symmetry, V(x, y, −v, θ) = V(x, y, v, θ + π) (core/similarity.py, Coverage)."""
+    def local_values(self, v0: np.ndarray, center: tuple[float, float], v: float, theta: float,
+                     robot: RobotParams | None = None) -> tuple[GridSpec, np.ndarray]:
+        """(grid, V on it) over the window centred at ``center``: a table model's whole (v, θ) table, or a slice
+        model's 2 × 2 (v, θ) stencil (v ± dv/2, θ ± dθ/2, dv and dθ the card grid's steps; v kept within
+        [v_min, v_max]) around the state, mirrored for a reversing state of a forward-only card
+        (V(x, y, −v, θ) = V(x, y, v, θ + π); core/similarity.py, Coverage).  ``robot``: a covered robot in the
+        card's units (a conditioned model's channels)."""
+        g = self.grid
+        if self.whole_table:
+            grid = GridSpec((g.lo[0] + center[0], g.lo[1] + center[1], *g.lo[2:]),
+                            (g.hi[0] + center[0], g.hi[1] + center[1], *g.hi[2:]), g.shape, g.periodic)
+            return grid, self.table(v0, robot)
         mirror = v < 0 and self.params.v_min >= 0
-        dv, dtheta = self.grid.spacings[2], self.grid.spacings[3]
+        dv, dtheta = g.spacings[2], g.spacings[3]
         v_mid = float(np.clip(-v if mirror else v, self.params.v_min + dv / 2, self.params.v_max - dv / 2))
         speeds = np.array([v_mid - dv / 2, v_mid + dv / 2])
         headings = np.array([theta - dtheta / 2, theta + dtheta / 2])
@@ -104,7 +135,13 @@ class LearnedValueFunction:
         table = np.moveaxis(slices.reshape(2, 2, nx, ny), (0, 1), (2, 3))
         if mirror:
             speeds, table = -speeds[::-1], table[:, :, ::-1]
-        grid = GridSpec((self.grid.lo[0] + center[0], self.grid.lo[1] + center[1], speeds[0], headings[0]),
-                        (self.grid.hi[0] + center[0], self.grid.hi[1] + center[1], speeds[-1], headings[-1]),
-                        (nx, ny, 2, 2))
-        return ValueTable(grid, table)
+        grid = GridSpec((g.lo[0] + center[0], g.lo[1] + center[1], speeds[0], headings[0]),
+                        (g.hi[0] + center[0], g.hi[1] + center[1], speeds[-1], headings[-1]), (nx, ny, 2, 2))
+        return grid, table
+
+    def local_table(self, v0: np.ndarray, center: tuple[float, float], v: float, theta: float,
+                    robot: RobotParams | None = None) -> ValueTable | ReversingTable:
+        """:meth:`local_values` as a table that answers V and ∇V at any state it covers (a whole forward table also
+        at reversing states, by symmetry)."""
+        return value_table(*self.local_values(v0, center, v, theta, robot))
+

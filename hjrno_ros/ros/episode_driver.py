@@ -28,7 +28,7 @@ from geometry_msgs.msg import TwistStamped
 from nav_msgs.msg import OccupancyGrid
 from rclpy.executors import SingleThreadedExecutor
 
-from hjrno_ros.core.dynamics import CarParams
+from hjrno_ros.core.dynamics import RobotParams
 from hjrno_ros.ros.sim_robot import Log, SimRobot
 from hjrno_ros.studies import closed_loop
 
@@ -49,7 +49,7 @@ class EpisodeRobot(SimRobot):
     """A SimRobot on an occupancy raster whose driver and start change per episode (:meth:`reset`)."""
 
     def __init__(self, obstacle: np.ndarray, occupancy: np.ndarray, resolution: float, origin: tuple[float, float],
-                 params: CarParams, seed: int = 0, context: Any = None, **kwargs: Any) -> None:
+                 params: RobotParams, seed: int = 0, context: Any = None, **kwargs: Any) -> None:
         """``obstacle``: bool ``[ix, iy]``, the cells a robot must not enter (occupied and unknown);
         ``occupancy``: the int8 raster published as the map."""
         self.obstacle = np.asarray(obstacle, bool)

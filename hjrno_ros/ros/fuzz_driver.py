@@ -34,8 +34,9 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.node import Node
 from std_msgs.msg import String
 
-from hjrno_ros.core.dynamics import CarParams
+from hjrno_ros.core.dynamics import RobotParams
 from hjrno_ros.core.model_card import ModelCard
+from hjrno_ros.core.safety_filter import turn_bound
 from hjrno_ros.ros.messages import LATCHED, finite, planar_yaw
 from hjrno_ros.ros.model_files import resolve_model
 from hjrno_ros.ros.parameters import PARAMETERS
@@ -54,15 +55,15 @@ SANE = {"filter_mode": "blend", "odom_timeout": 0.5, "value_timeout": 1.0, "cont
         "stop_pub_timeout": 2.0, "inflation_radius": -1.0, "recenter_distance": 1.0, "speed_tolerance": 0.05}
 
 
-def model_limits(model: str | None = None) -> CarParams:
+def model_limits(model: str | None = None) -> RobotParams:
     """The robot limits of the model the node loads (its card's dynamics)."""
     return ModelCard.load(resolve_model(str(model) if model else "")).dynamics
 
 
-def angular_bound(p: CarParams, v: float, linear: float, dt: float) -> float:
-    """κ_max·max(|v|, |v′|), v′ = ``linear`` clipped to what the base reaches from v within a_max·dt."""
-    reach = min(max(linear, v - p.a_max * dt), v + p.a_max * dt)
-    return p.kappa_max * max(abs(v), abs(reach))
+def angular_bound(p: RobotParams, v: float, linear: float, dt: float) -> float:
+    """The largest |angular| the filter passes (safety_filter.turn_bound): ω_max, or for a car κ_max·max(|v|, |v′|),
+    v′ = ``linear`` clipped to what the base reaches from v within a_max·dt."""
+    return float(turn_bound(p, np.array([0.0, 0.0, v, 0.0]), np.float64(linear), dt))
 
 
 def quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
@@ -75,7 +76,7 @@ def quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, float, flo
 class FuzzDriver(Node):
     """Publishes the fuzz inputs (``step``) and checks the node's outputs as they arrive."""
 
-    def __init__(self, context: Any, seed: int, limits: CarParams) -> None:
+    def __init__(self, context: Any, seed: int, limits: RobotParams) -> None:
         super().__init__("brt_fuzz_driver", context=context)
         self.rng = np.random.default_rng(seed)
         self.limits = limits
@@ -320,7 +321,8 @@ class FuzzDriver(Node):
         msg = Twist()
         kind = str(rng.choice(["valid"] * 5 + ["beyond"] * 2 + ["nonplanar", "hostile"]))
         lin = float(rng.uniform(p.v_min, p.v_max))
-        ang = float(rng.uniform(-1, 1) * p.kappa_max * max(abs(self.speed), 0.05) * 0.9)
+        speed = max(abs(self.speed), 0.05)
+        ang = float(rng.uniform(-1, 1) * angular_bound(p, speed, speed, 0.0) * 0.9)
         if kind == "beyond":
             lin = float(rng.choice([lin, -0.5, 1.5, 3.0, 1e300, p.v_max + 1e-9]))
             ang = float(rng.choice([ang, 3.0, -5.0, -1e300, 1e-310]))

@@ -9,7 +9,8 @@ from typing import Any
 import numpy as np
 
 from hjrno_ros.core.model_card import ModelCard, paths
-from hjrno_ros.ros.robot import ScaledValueFunction, covered_scaling, filter_params, robot_params
+from hjrno_ros.core.scaled_values import ScaledValueFunction, covered_scaling, filter_params
+from hjrno_ros.ros.robot import robot_params
 
 
 def bundled_model_candidates(name: str = "default") -> list[Path]:

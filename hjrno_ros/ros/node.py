@@ -31,7 +31,7 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import String
 from std_srvs.srv import SetBool
 
-from hjrno_ros.core import safety_filter
+from hjrno_ros.core import least_restrictive, safety_filter
 from hjrno_ros.ros import messages, parameters, status
 from hjrno_ros.ros.inputs import MapData, MapInput, RobotState, StateInput
 from hjrno_ros.ros.interfaces import Interfaces
@@ -156,6 +156,7 @@ class BrtNode(LifecycleNode):
         self._last_decision_time = -math.inf
         self._last_cmd: tuple[float, str] | None = None  # (monotonic s, header frame_id)
         self._last_nominal: tuple[float, float] | None = None  # (linear, angular) of the last filtered nominal
+        self._last_output = (0.0, 0.0)  # (linear, angular) last published: what the base executes meanwhile
         self.states = StateInput(cfg["odom_topic"], cfg["pose_topic"])
         refinement = (Refinement(self.vf.grid, str(self.model_stem), cfg["refine_horizon"], cfg["refine_stage"],
                                  int(cfg["refine_cpus"]), from_target=self.card.kind == "solver")
@@ -199,7 +200,7 @@ class BrtNode(LifecycleNode):
 
     @property
     def scale(self) -> float:
-        """The robot's length scale against the card's car (1: the card's own)."""
+        """The robot's length scale against the card's robot (1: the card's own)."""
         return getattr(getattr(self.vf, "scaling", None), "length", 1.0)
 
     @property
@@ -265,8 +266,10 @@ class BrtNode(LifecycleNode):
             ("map", lambda: self.maps.get(now, cfg["map_timeout"])),
             ("state", lambda: self.states.get(now, cfg["odom_timeout"], data["map"].frame_id)),
             ("speed", lambda: self._speed_check(data["state"])),
-            ("value", lambda: self.values.get(now, data["state"], cfg["value_timeout"])),
+            ("value", lambda: self.values.get(now, cfg["value_timeout"])),
         ]
+        if self.settings.mode != "least_restrictive":  # these modes read V at the state itself
+            sources.append(("value", lambda: self.values.covers(data["value"], data["state"])))
         for name, source in sources:
             value, reason = source()
             if reason:
@@ -301,6 +304,7 @@ class BrtNode(LifecycleNode):
         self.counts.add("commands")
         if not self.enabled:
             self.io.cmd.publish(msg)
+            self._last_output = (t.linear.x, t.angular.z)
             return
         start = time.perf_counter()
         try:
@@ -315,9 +319,11 @@ class BrtNode(LifecycleNode):
         reason, data = self.check(now)
         if reason:
             self.io.cmd.publish(self._command(0.0, 0.0, "", header))
+            self._last_output = (0.0, 0.0)
             self._record(safety_filter.stop(math.nan, reason), now, stop=True)
             return
         decision = self._decide(data, (t.linear.x, t.angular.z))
+        self._last_output = (decision.linear, decision.angular)
         planar = t.linear.y == t.linear.z == t.angular.x == t.angular.y == 0.0  # a planar base has no other axes
         self._last_nominal = (t.linear.x, t.angular.z)
         if decision.intervened or decision.clipped or not planar:
@@ -348,6 +354,7 @@ class BrtNode(LifecycleNode):
         reason, _ = self.check(now)
         if reason:
             self.io.cmd.publish(self._command(0.0, 0.0, last[1]))
+            self._last_output = (0.0, 0.0)
             self.counts.add("stops")
 
     def _on_enable(self, request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:
@@ -379,11 +386,23 @@ class BrtNode(LifecycleNode):
     def _decide(self, data: dict[str, Any], nominal: tuple[float, float]) -> safety_filter.Decision:
         """The filter's decision on ``nominal`` (linear, angular) at the checked state and value table."""
         state, val, p = data["state"], data["value"], self.vf.params
-        s = table_state(state, val.theta, p.v_min, p.v_max)
-        values, grads = val.table.value_and_gradient(s)
         refined = val.source == "refined" and val.horizon >= self.refined_from
         settings = self.refined_settings if refined else self.settings
+        if settings.mode == "least_restrictive":
+            delay = max(time.monotonic() - state.received, 0.0) + self._cfg["command_latency"]
+            return least_restrictive.decide(p, settings, self.certificate(data, settings.epsilon),
+                                            state.vector(p.v_min, p.v_max), *nominal, self._last_output, delay)
+        s = table_state(state, val.theta, p.v_min, p.v_max)
+        values, grads = val.table.value_and_gradient(s)
         return safety_filter.filter_command(p, settings, s, float(values[0]), grads[0], *nominal)
+
+    def certificate(self, data: dict[str, Any], epsilon: float) -> least_restrictive.Certificate:
+        """W of the checked map and value table: the learned value less ε where the table holds the state, and the
+        braking bound on the map's signed distance (less the footprint and the map's own margin) everywhere
+        (core/least_restrictive.py)."""
+        m = data["map"]
+        return least_restrictive.certificate(self.vf.params, lambda points: self.values.clearance(m, points),
+                                             data["value"].table, epsilon)
 
     def _publish_status(self) -> None:
         if self.active:

@@ -14,7 +14,7 @@ from typing import Any
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
 from hjrno_ros.core import safety_filter
-from hjrno_ros.core.dynamics import CarParams
+from hjrno_ros.core.dynamics import CAR_MODEL, DIFF_DRIVE_MODEL, RobotParams
 from hjrno_ros.core.model_card import ModelCard
 
 
@@ -39,6 +39,7 @@ class Param:
 
 
 MAP_KINDS = ("occupancy", "costmap")
+ROBOT_MODEL_NAMES = {"diff_drive": DIFF_DRIVE_MODEL, "car": CAR_MODEL}  # parameter value -> card dynamics.model
 PARAMETERS: dict[str, Param] = {
     "autostart": Param(True, "configure and activate at start (plain mode); false: wait for a lifecycle manager "
                              "(Nav2's, with bond_timeout 0)", read_only=True),
@@ -61,21 +62,27 @@ PARAMETERS: dict[str, Param] = {
     "inference_threads": Param(1, "torch CPU threads for inference (keeps cores free for the command path)", 1, 64,
                                read_only=True),
     "epsilon": Param(-1.0, "m: intervene when V <= epsilon; -1 (startup only) = the model card's value, else 0.1"),
-    "filter_mode": Param("blend", "blend (ramp over blend_width above epsilon) | switch (only at V <= epsilon) | qp "
-                                  "(smallest change keeping dV/dt >= -decay_rate (V - epsilon))"),
+    "filter_mode": Param("least_restrictive", "least_restrictive (the admissible command closest to the nominal: "
+                                              "the next state's certificate falls no faster than decay_rate, not "
+                                              "at all at or below 0) | blend (ramp over blend_width above epsilon) "
+                                              "| switch (only at V <= epsilon) | qp (smallest change keeping dV/dt "
+                                              ">= -decay_rate (V - epsilon))"),
     "blend_width": Param(0.2, "m: blend mode ramps from safe to nominal over (epsilon, epsilon + blend_width]",
                          1e-3, 10.0),
-    "decay_rate": Param(4.0, "1/s: qp mode keeps dV/dt >= -decay_rate * (V - epsilon) under the worst disturbance",
-                        1e-3, 100.0),
+    "decay_rate": Param(4.0, "1/s: how fast the certificate (least_restrictive) or V - epsilon (qp) may fall "
+                             "towards 0 under the worst disturbance", 1e-3, 100.0),
     "value_clip": Param(1.0, "m: value grid palette, V <= 0 -> 100, V >= value_clip -> 0", 1e-3, 100.0),
-    "a_max": Param(-1.0, "m/s^2: the robot's acceleration limit; -1 = the model card's car", read_only=True),
-    "kappa_max": Param(-1.0, "1/m: the robot's curvature limit (omega_max / v_max for a differential drive); -1 = the "
-                             "model card's car", read_only=True),
-    "v_max": Param(-1.0, "m/s: the robot's top speed; -1 = the model card's car", read_only=True),
+    "robot_model": Param("diff_drive", "diff_drive (turns at up to omega_max, in place too) | car (curvature up to "
+                                       "kappa_max); must be the model card's model", read_only=True),
+    "a_max": Param(-1.0, "m/s^2: the robot's acceleration limit; -1 = the model card's robot", read_only=True),
+    "omega_max": Param(-1.0, "rad/s: a diff_drive robot's turn-rate limit; -1 = the model card's robot",
+                       read_only=True),
+    "kappa_max": Param(-1.0, "1/m: a car's curvature limit; -1 = the model card's robot", read_only=True),
+    "v_max": Param(-1.0, "m/s: the robot's top speed; -1 = the model card's robot", read_only=True),
     "v_min": Param(math.nan, "m/s: the robot's lowest speed (< 0: it reverses); NaN = the card's v_min/v_max times "
                              "v_max", read_only=True),
     "tracking_error": Param(-1.0, "delta: the robot's tracking error per unit speed, ||d|| <= delta*|v| + d0; -1 = the "
-                                  "model card's car. The robot must have the card's dimensionless numbers "
+                                  "model card's robot. The robot must have the card's dimensionless numbers "
                                   "(docs/node.md, 'The robot')", read_only=True),
     "footprint_radius": Param(0.0, "m: the robot's radius, added to the inflation", 0.0, 5.0, read_only=True),
     "speed_tolerance": Param(0.05, "m/s: speeds this far outside the model's [v_min, v_max] fail closed", 0.0, 1.0),
@@ -85,15 +92,19 @@ PARAMETERS: dict[str, Param] = {
     "costmap_threshold": Param(99, "map_kind costmap: cost >= threshold is an obstacle; 99 = Nav2's inscribed cost "
                                    "(the footprint's inscribed radius is already inflated), 100 = lethal only", 0, 100),
     "unknown_is_obstacle": Param(True, "unknown cells (-1) and space beyond the map are obstacles"),
-    "inflation_radius": Param(-1.0, "m: obstacles grown by this much before inference (V0 = signed distance - "
-                                    "radius); -1 = h/sqrt(2) of the model grid (makes the grid's V0 conservative); "
-                                    "for a robot of radius rho set rho + h/sqrt(2)", -1.0, 5.0),
+    "inflation_radius": Param(-1.0, "m: obstacles grown by this much beyond footprint_radius (V0 = signed distance "
+                                    "- footprint_radius - inflation_radius); -1 = h/sqrt(2) of the coarser of the "
+                                    "model grid (at the robot's size) and the map (makes the interpolated V0 "
+                                    "conservative)", -1.0, 5.0),
     "inference_rate": Param(10.0, "Hz: how often the inference thread checks whether to recompute", 0.1, 100.0),
     "recenter_distance": Param(1.0, "m: recompute when the robot is this far from the window centre", 0.01, 100.0),
     "odom_timeout": Param(0.5, "s: older odometry (receipt time) fails closed", 0.01, 60.0),
     "map_timeout": Param(0.0, "s: older maps fail closed; 0 = never (map_server publishes once)", 0.0, 1e6),
     "value_timeout": Param(1.0, "s: older value tables fail closed; recomputed every value_timeout/2", 0.05, 60.0),
     "control_period": Param(0.05, "s: stop-republish timer period; also dt of v_cmd = v + u1*dt", 1e-3, 1.0),
+    "command_latency": Param(0.05, "s: from a filtered command to the wheels; least_restrictive judges each command "
+                                   "from the state this far (plus the odometry's age) ahead, the last command held "
+                                   "meanwhile", 0.0, 1.0),
     "refine_horizon": Param(0.0, "s: simulated time the HJ solver refines the operator's value over the whole map, "
                                  "warm-started from it, in a background process (nice 19); the filter uses each "
                                  "refined stage for as long as that map stands; 0 = off (static maps, docs/node.md)",
@@ -146,7 +157,9 @@ def validate(cfg: dict[str, Any], startup: bool = False) -> str | None:
         return f"map_kind must be one of {list(MAP_KINDS)}, got {cfg['map_kind']!r}"
     if cfg["filter_mode"] not in safety_filter.MODES:
         return f"filter_mode must be one of {list(safety_filter.MODES)}, got {cfg['filter_mode']!r}"
-    for name in ("a_max", "kappa_max", "v_max", "tracking_error"):
+    if cfg["robot_model"] not in ROBOT_MODEL_NAMES:
+        return f"robot_model must be one of {list(ROBOT_MODEL_NAMES)}, got {cfg['robot_model']!r}"
+    for name in ("a_max", "omega_max", "kappa_max", "v_max", "tracking_error"):
         if not (cfg[name] == -1.0 or (cfg[name] > 0 if name != "tracking_error" else cfg[name] >= 0)):
             return f"{name} must be -1 (the model card's) or {'>= 0' if name == 'tracking_error' else '> 0'}, " \
                    f"got {cfg[name]}"
@@ -165,11 +178,13 @@ def obstacle_threshold(cfg: dict[str, Any]) -> int:
 
 
 def filter_settings(card: ModelCard, cfg: dict[str, Any], scale: float = 1.0,
-                    robot: CarParams | None = None) -> safety_filter.FilterSettings:
+                    robot: RobotParams | None = None) -> safety_filter.FilterSettings:
     """The filter's settings: ``epsilon``, or for -1 the card's calibrated margin (a length: times ``scale``, the
-    robot's size against the card's car) plus the ``robot``'s sampling margin over one control period."""
+    robot's size against the card's robot) plus, for the modes that judge the present state only, the ``robot``'s
+    sampling margin over one control period (least_restrictive looks one period ahead instead)."""
     dt = float(cfg["control_period"])
-    sampled = safety_filter.sampling_margin(robot, dt) if robot is not None else 0.0
+    ahead = cfg["filter_mode"] == "least_restrictive"
+    sampled = safety_filter.sampling_margin(robot, dt) if robot is not None and not ahead else 0.0
     eps = cfg["epsilon"] if cfg["epsilon"] >= 0 else card.margin() * scale + sampled
     return safety_filter.FilterSettings(epsilon=float(eps), mode=cfg["filter_mode"],
                                         blend_width=float(cfg["blend_width"]), dt=float(cfg["control_period"]),

@@ -1,6 +1,7 @@
 """A simulated base for :mod:`hjrno_ros.studies.product_scenes` over DDS: it latches the scenes' map, publishes
-odometry at 50 Hz, sends the scene's nominal command at 20 Hz, and integrates the car in real time with the
-*filtered* command it receives (stale for > 0.25 s: brake) and a random disturbance ‖d‖ ≤ δ·|v| + d₀."""
+odometry at 50 Hz, sends the scene's nominal command at 20 Hz, and integrates the robot (car or differential
+drive) in real time with the *filtered* command it receives (stale for > 0.25 s: brake) and a random disturbance
+‖d‖ ≤ δ·|v| + d₀."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from geometry_msgs.msg import Twist
 from nav_msgs.msg import OccupancyGrid, Odometry
 from rclpy.node import Node
 
-from hjrno_ros.core.dynamics import CarParams
+from hjrno_ros.core.dynamics import RobotParams
 from hjrno_ros.ros.messages import LATCHED, occupancy_message, odometry_message
 from hjrno_ros.studies import product_scenes
 from hjrno_ros.studies.closed_loop import base_step
@@ -23,7 +24,7 @@ STALE = 0.25  # s
 
 
 class SceneBase(Node):
-    def __init__(self, context, params: CarParams, seed: int = 0) -> None:
+    def __init__(self, context, params: RobotParams, seed: int = 0) -> None:
         super().__init__("scene_base", context=context)
         self.params, self.rng = params, np.random.default_rng(seed)
         self._lock = threading.Lock()

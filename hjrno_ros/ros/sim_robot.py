@@ -1,11 +1,11 @@
-"""A simulated robot over real ROS 2 topics, for the demo.
+"""A simulated robot over real ROS 2 topics, for the depot check (:mod:`hjrno_ros.ros.episode_driver`).
 
 It latches the map (reliable + transient local), publishes odometry in the map frame at
 ``odom_rate``, sends a careless goal-seeking TwistStamped command stream at ``cmd_rate`` (it
-ignores obstacles: brt_node must keep it safe), and integrates the dynamic Dubins car with the
-*filtered* command and a random disturbance ‖d‖ ≤ δ·|v| + d₀.  A filtered command older than
+ignores obstacles: brt_node must keep it safe), and integrates the card's robot (car or differential drive)
+with the *filtered* command and a random disturbance ‖d‖ ≤ δ·|v| + d₀.  A filtered command older than
 ``cmd_timeout`` counts as zero (brake), as a real base would.  It records the trajectory,
-interventions, command latency and value-grid snapshots for :mod:`hjrno_ros.tools.demo`.
+interventions, command latency and value-grid snapshots.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from std_msgs.msg import String
 
-from hjrno_ros.core.dynamics import CarParams
+from hjrno_ros.core.dynamics import RobotParams
 from hjrno_ros.core.geometry import union_sdf
 from hjrno_ros.ros.messages import LATCHED, occupancy_array, occupancy_message, odometry_message
 from hjrno_ros.studies import closed_loop
@@ -46,7 +46,7 @@ class Log:
 
 
 class SimRobot(Node):
-    def __init__(self, shapes: list, params: CarParams, occupancy: np.ndarray, resolution: float,
+    def __init__(self, shapes: list, params: RobotParams, occupancy: np.ndarray, resolution: float,
                  origin: tuple[float, float], start: np.ndarray, goals: np.ndarray, seed: int = 0, context=None,
                  direct: bool = False, odom_rate: float = 50.0, cmd_rate: float = 20.0, cmd_timeout: float = 0.25,
                  control_period: float = 0.05, footprint: float = 0.0) -> None:

@@ -16,8 +16,9 @@ from hjrno_ros.ros.value_worker import table_state
 
 STATUS_PERIOD = 0.1  # s
 DIAGNOSTICS_PERIOD = 1.0  # s
-LEVELS = {"ok": DiagnosticStatus.OK, "intervening": DiagnosticStatus.OK, "bypassed": DiagnosticStatus.WARN,
-          "unsafe_idle": DiagnosticStatus.WARN, "fail_closed": DiagnosticStatus.ERROR}
+LEVELS = {"ok": DiagnosticStatus.OK, "intervening": DiagnosticStatus.OK, "clipped": DiagnosticStatus.WARN,
+          "bypassed": DiagnosticStatus.WARN, "unsafe_idle": DiagnosticStatus.WARN,
+          "fail_closed": DiagnosticStatus.ERROR}
 NESTED = ("dropped", "counts", "value_grid", "robot", "filter_ms", "refinement", "cmd_type_mismatch")
 
 
@@ -85,35 +86,48 @@ class ThrottledLog:
 
 def mode(enabled: bool, reason: str, decision: Any, value: float, epsilon: float) -> tuple[str, str]:
     """(state, reason) of the status, for the present: bypassed; fail_closed; with a recent nominal command,
-    intervening or ok as the filter would decide now (``decision``); without one, unsafe_idle when
-    V ≤ ε (the next command will be changed), else ok."""
+    intervening, clipped (the command exceeds the robot's limits and is cut to them) or ok as the filter would
+    decide now (``decision``); without one, unsafe_idle when ``value`` ≤ ``epsilon`` (V and ε, or the
+    least-restrictive certificate W and 0: the next command may be changed), else ok."""
     if not enabled:
         return "bypassed", "filter bypassed via ~/enable"
     if reason:
         return "fail_closed", reason
     if decision is not None:
-        return ("intervening", decision.reason) if decision.intervened else ("ok", decision.reason)
+        if decision.intervened:
+            return "intervening", decision.reason
+        return ("clipped", "nominal command beyond the robot's limits, clipped") if decision.clipped else \
+            ("ok", decision.reason)
     if value <= epsilon:
-        return "unsafe_idle", f"V = {value:.3f} m <= epsilon {epsilon:g} m with no recent command"
+        return "unsafe_idle", f"V = {value:.3f} m <= {epsilon:g} m with no recent command"
     return "ok", "pass"
+
+
+def nan_if_none(x: float | None) -> float:
+    return math.nan if x is None else x
 
 
 def build(node: Any, now: float, reason: str, data: dict[str, Any], decision: Any) -> dict[str, Any]:
     """The status JSON of a configured node (docs/node.md, "Status JSON")."""
     state, val = data.get("state"), data.get("value")
-    value = None
+    value = certificate = None
     if state is not None and val is not None:
         p = node.vf.params
-        value = float(val.table.value(table_state(state, val.theta, p.v_min, p.v_max))[0])
-    name, why = mode(node.enabled, reason, decision, value if value is not None else math.nan,
-                     node.settings.epsilon)
+        s = table_state(state, val.theta, p.v_min, p.v_max)
+        if node.values.covers(val, state)[0] is not None:
+            value = float(val.table.value(s)[0])
+        if node.settings.mode == "least_restrictive":
+            certificate = float(node.certificate(data, node.settings.epsilon)(s[None])[0])
+    ahead = certificate is not None
+    name, why = mode(node.enabled, reason, decision, nan_if_none(certificate if ahead else value),
+                     0.0 if ahead else node.settings.epsilon)
     m, odom, latest = node.maps.current, node.states.odom, node.values.value
     counts = node.counts.snapshot()
     refinement = node.values.refinement
     robot = None if state is None else {"x": round(state.x, 4), "y": round(state.y, 4), "v": round(state.v, 4),
                                         "theta": round(state.theta, 4), "frame_id": state.frame_id}
     return {
-        "state": name, "reason": why, "value": value, "robot": robot,
+        "state": name, "reason": why, "value": value, "certificate": certificate, "robot": robot,
         "epsilon": node.settings.epsilon,
         "epsilon_calibrated": node.calibrated_epsilon,
         "epsilon_below_calibrated": node.epsilon_below_calibrated,
@@ -140,7 +154,8 @@ def build(node: Any, now: float, reason: str, data: dict[str, Any], decision: An
 
 
 def diagnostics(status: dict[str, Any], name: str, stamp: Any) -> DiagnosticArray:
-    """The status as one DiagnosticStatus: OK (ok, intervening), WARN (bypassed), ERROR (fail_closed)."""
+    """The status as one DiagnosticStatus: OK (ok, intervening), WARN (clipped, bypassed, unsafe_idle), ERROR
+    (fail_closed)."""
     flat = {k: v for k, v in status.items() if k not in NESTED}
     if status.get("epsilon_below_calibrated") or status.get("cmd_type_mismatch"):
         entry_level = max(LEVELS[status["state"]], DiagnosticStatus.WARN)

@@ -1,8 +1,9 @@
 """The value worker: the node's own thread that keeps a value table around the robot.
 
 At ``inference_rate`` it installs new maps (signed distance), and when the robot has left the
-window's centre, its speed or heading cell, or the table is half ``value_timeout`` old, it predicts
-V∞ on a window centred on the robot (a 2 × 2 (v, θ) stencil) and swaps the table in atomically.
+window's centre, the table is half ``value_timeout`` old or (a slice model's 2 × 2 (v, θ) stencil) the robot
+left its speed or heading cell, it predicts V∞ on a window centred on the robot (a table model: every speed and
+heading at once) and swaps the table in atomically.
 With background refinement, the refined table of the current map replaces the operator's while the
 robot is inside it.  It runs at a lower scheduling priority, so a busy CPU serves commands first.
 ``get`` is the value input of the fail-closed check.
@@ -22,7 +23,6 @@ import numpy as np
 
 from hjrno_ros.core import geometry
 from hjrno_ros.core.grids import wrap_angle
-from hjrno_ros.core.value_table import ValueTable
 from hjrno_ros.ros.inputs import MapData, MapInput, RobotState, StateInput
 from hjrno_ros.ros.parameters import obstacle_threshold
 from hjrno_ros.ros.refinement import Refinement
@@ -32,7 +32,7 @@ INFERENCE_NICE = 10  # the worker thread's nice value above the node's
 
 @dataclasses.dataclass(frozen=True)
 class ValueData:
-    table: ValueTable  # over the window × 2 × 2 (v, θ) stencil, or the refined table over the map
+    table: Any  # ValueTable or ReversingTable: the window's whole table, its 2 × 2 (v, θ) stencil, or the refined map
     center: tuple[float, float]
     v: float
     theta: float
@@ -128,18 +128,30 @@ class ValueWorker:
                     self.log("error", self.error)
 
     # ------------------------------------------------------------------ work
-    def inflation(self) -> float:
-        """The inflation in metres: ``footprint_radius`` plus ``inflation_radius``, or for -1 half the model grid's
-        x-y cell diagonal (which makes the grid's V0 conservative)."""
+    def inflation(self, map_resolution: float = 0.0, model_grid: bool = True) -> float:
+        """The inflation in metres: ``footprint_radius`` plus ``inflation_radius``, or for -1 half the cell diagonal
+        of the coarser of the model grid and the map (interpolating either between its nodes can overestimate the
+        clearance by that much: docs/design.md, "Inflation"); ``model_grid`` False: of the map alone (what the
+        braking bound, which reads the map and not the model's grid, needs)."""
         cfg = self.cfg()
         radius = cfg["inflation_radius"]
-        return cfg["footprint_radius"] + (float(radius) if radius >= 0 else self.vf.grid.half_cell_diagonal)
+        if radius >= 0:
+            return cfg["footprint_radius"] + float(radius)
+        grid = self.vf.grid.half_cell_diagonal if model_grid else 0.0
+        return cfg["footprint_radius"] + max(grid, map_resolution / math.sqrt(2))
+
+    def clearance(self, m: MapData, points: np.ndarray) -> np.ndarray:
+        """The braking bound's clearance at x-y ``points``: the map's signed distance minus the footprint and the
+        map's own interpolation margin (m)."""
+        outside = -m.resolution if m.unknown_is_obstacle else None
+        sd = geometry.sample_raster(m.sd, m.origin, m.resolution, points, outside=outside)
+        return sd - self.inflation(m.resolution, model_grid=False)
 
     def v0(self, m: MapData, points: np.ndarray) -> np.ndarray:
         """V0 at x-y ``points`` (..., 2): the map's signed distance minus the inflation (float32, m)."""
         outside = -m.resolution if m.unknown_is_obstacle else None
         v0 = geometry.sample_raster(m.sd, m.origin, m.resolution, points, outside=outside)
-        return (v0 - self.inflation()).astype(np.float32)
+        return (v0 - self.inflation(m.resolution)).astype(np.float32)
 
     def step(self) -> None:
         cfg = self.cfg()
@@ -177,7 +189,7 @@ class ValueWorker:
         h = self.grid_resolution
         info = {"frame_id": m.frame_id, "origin": [float(nodes[0, 0, 0] - h / 2), float(nodes[0, 0, 1] - h / 2)],
                 "resolution": h, "width": self.grid_shape[0], "height": self.grid_shape[1], "v": v,
-                "theta": state.theta, "center": list(center), "inflation_radius": self.inflation(),
+                "theta": state.theta, "center": list(center), "inflation_radius": self.inflation(m.resolution),
                 "source": "refined" if refined else "operator"}
         self.value = ValueData(table, center, v, state.theta, time.monotonic(), m.version, latency, info,
                                info["source"], refined.horizon if refined else 0.0)
@@ -191,14 +203,24 @@ class ValueWorker:
         val = self.value
         return bool(self.error or val is None or val.map_version != m.version
                     or (val.table is not refined.table if refined else val.source != "operator")
-                    or math.hypot(state.x - val.center[0], state.y - val.center[1]) > cfg["recenter_distance"]
-                    or abs(state.v - val.v) > 0.5 * self._dv  # the state left the stencil's cell
-                    or abs(float(wrap_angle(state.theta - val.theta))) > 0.5 * self._dtheta
-                    or now - val.computed > 0.5 * cfg["value_timeout"])
+                    or math.hypot(state.x - val.center[0], state.y - val.center[1]) > self.recenter_distance(cfg)
+                    or now - val.computed > 0.5 * cfg["value_timeout"]
+                    or not (self.whole_table or refined) and (  # the state left a stencil's cell
+                        abs(state.v - val.v) > 0.5 * self._dv
+                        or abs(float(wrap_angle(state.theta - val.theta))) > 0.5 * self._dtheta))
+
+    @property
+    def whole_table(self) -> bool:
+        """Whether each table holds every speed and heading of its window (a table model)."""
+        return bool(getattr(self.vf, "whole_table", False))
+
+    def recenter_distance(self, cfg: dict) -> float:
+        """m: ``recenter_distance``, at most a quarter of the window's width (a small robot's window is small)."""
+        return min(cfg["recenter_distance"], 0.25 * min(self.vf.window))
 
     # ------------------------------------------------------------------ the value input
-    def get(self, now: float, state: RobotState, timeout: float) -> tuple[ValueData | None, str]:
-        """The table for ``state``, or why there is none usable."""
+    def get(self, now: float, timeout: float) -> tuple[ValueData | None, str]:
+        """The latest table, or why there is none usable (a failed inference, none yet, too old)."""
         if self.error:
             return None, self.error
         val = self.value
@@ -207,12 +229,17 @@ class ValueWorker:
         age = now - val.computed
         if age > timeout:
             return None, f"value is {age:.2f} s old (value_timeout {timeout:g} s)"
+        return val, ""
+
+    def covers(self, val: ValueData, state: RobotState) -> tuple[ValueData | None, str]:
+        """``val`` if its table holds ``state``, or why not (the modes that read V at the state itself need it;
+        least_restrictive judges such a state by the braking bound instead)."""
         p = self.vf.params
         s = state.vector(p.v_min, p.v_max)
         if not bool(val.table.inside(s, axes=(0, 1))):
             return None, (f"state ({s[0]:.4g}, {s[1]:.4g}) outside the value window centred at "
                           f"({val.center[0]:.4g}, {val.center[1]:.4g})")
         grid = val.table.grid
-        if not grid.lo[2] - self._dv <= s[2] <= grid.hi[2] + self._dv:
+        if not self.whole_table and not grid.lo[2] - self._dv <= s[2] <= grid.hi[2] + self._dv:
             return None, f"speed {s[2]:.4g} m/s outside the value table's stencil [{grid.lo[2]:.2f}, {grid.hi[2]:.2f}]"
         return val, ""

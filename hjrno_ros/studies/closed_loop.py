@@ -19,7 +19,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from hjrno_ros.core.dynamics import CarParams, car_disturbance_bound, car_f, car_worst_disturbance
+from hjrno_ros.core.dynamics import CarParams, disturbance_bound, robot_f, worst_disturbance
 from hjrno_ros.core.geometry import union_sdf
 from hjrno_ros.core.grids import wrap_angle
 from hjrno_ros.core.safety_filter import twist_to_control
@@ -41,6 +41,7 @@ class World:
     truth: ValueTable
     params: CarParams
     scale: float = 1.0  # m per unit of the shapes' coordinates (a world seen at another robot's size)
+    grid_clearance: Callable[[np.ndarray], np.ndarray] | None = None  # l − r interpolated on the table's grid
 
     def clearance(self, points: np.ndarray) -> np.ndarray:
         """l(x, y) in metres for points ``(..., 2)`` (or states ``(..., 4)``)."""
@@ -133,14 +134,14 @@ def nominal_twist(params: CarParams, states: np.ndarray, goals: np.ndarray, cont
     angular = np.clip(2.0 * error, -2.0, 2.0) * np.maximum(states[:, 2], 0.1)
     linear = np.select([controller == "straight", controller == "reverse", controller == "spin"],
                        [params.v_max, params.v_min, 0.0], linear)
-    angular = np.where(controller == "spin", params.kappa_max * params.v_max,
+    angular = np.where(controller == "spin", params.turn_rate_max,
                        np.where(controller == "goal", angular, 0.0))
     return np.column_stack([linear, angular])
 
 
 def rk4(params: CarParams, x: np.ndarray, u: np.ndarray, d: np.ndarray, dt: float) -> np.ndarray:
     """One RK4 step of the car, θ wrapped."""
-    x = rk4_step(lambda s, u_, d_: car_f(params, s, u_, d_), x, u, d, dt)
+    x = rk4_step(lambda s, u_, d_: robot_f(params, s, u_, d_), x, u, d, dt)
     x[:, 3] = wrap_angle(x[:, 3])
     return x
 
@@ -151,7 +152,7 @@ def base_step(params: CarParams, x: np.ndarray, twist: np.ndarray, control_perio
     (:func:`twist_to_control` over ``control_period``) and moves under a random disturbance uniform in the
     car's disk ‖d‖ ≤ δ·|v| + d₀ (the demo's, the depot check's and the product scenes' robot)."""
     u = twist_to_control(params, x, twist, control_period)
-    d = car_disturbance_bound(params, x[:, 2])[:, None] * ball(rng, (len(x),), 1.0)
+    d = disturbance_bound(params, x[:, 2])[:, None] * ball(rng, (len(x),), 1.0)
     return rk4(params, x, u, d, dt)
 
 
@@ -189,10 +190,10 @@ def run_episodes(world: World, episodes: Episodes, filt: Filter | None, settings
             interventions[idx] += intervened
             raised[idx] += np.abs(twist[:, 0]) > np.abs(nominal[:, 0]) + 1e-9
         u = twist_to_control(p, xa, twist, dt)
-        d = car_disturbance_bound(p, xa[:, 2])[:, None] * episodes.noise[k, idx]  # ‖d‖ ≤ δ·|v| + d₀
+        d = disturbance_bound(p, xa[:, 2])[:, None] * episodes.noise[k, idx]  # ‖d‖ ≤ δ·|v| + d₀
         if worst[idx].any():
             w = worst[idx]
-            d[w] = car_worst_disturbance(p, xa[w], world.truth.gradient(xa[w]))
+            d[w] = worst_disturbance(p, xa[w], world.truth.gradient(xa[w]))
         xn = rk4(p, xa, u, d, dt)
         travelled[idx] += np.linalg.norm(xn[:, :2] - xa[:, :2], axis=-1)
         for acc, last, value in ((jerk_sq, last_a, u[:, 0]), (angacc_sq, last_w, twist[:, 1])):

@@ -3,8 +3,9 @@
 Filters: ``none``; ``stop_zone`` (Nav2 collision-monitor style, :mod:`stop_zone`); the ground-truth
 HJ filter (V∞ table from the solver, margin δ); learned HJ filters (a model's V table on the same
 window, with the model card's calibrated ε, and with δ alone: "no model margin").  The ground-truth
-and calibrated filters also run in ``blend`` and ``qp`` mode.  Every filter sees the same worlds, starts, goals
-and disturbance sequences.
+and calibrated filters run in every mode (switch, least_restrictive, blend, qp); least_restrictive's braking
+bound reads the world's target l − r on the grid, as brt_node reads its map.  Every filter sees the same
+worlds, starts, goals and disturbance sequences.
 """
 
 from __future__ import annotations
@@ -16,8 +17,10 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy.interpolate import RegularGridInterpolator
 
 from hjrno_ros.core.dynamics import CarParams
+from hjrno_ros.core.least_restrictive import certificate, filter_least_restrictive
 from hjrno_ros.core.model_card import ModelCard
 from hjrno_ros.core.safety_filter import MODES, FilterSettings, filter_batch, sampling_margin
 from hjrno_ros.core.similarity import Dimensionless, Scaling
@@ -61,7 +64,7 @@ def default_filters(models: dict[str, float | None], truth_epsilon: float) -> li
 
 
 def _name(source: str, mode: str) -> str:
-    return source if mode == "switch" else f"{source}_{mode}"
+    return source if mode == "switch" else f"{source}_{mode}"  # "switch" keeps the names of the first studies
 
 
 def refined_label(label: str, horizon: float) -> str:
@@ -92,7 +95,11 @@ def robot_world(solved: held_out.Solved, predicted: dict[str, np.ndarray], robot
         t = ValueTable(scaling.grid_to_robot(solved.grid), values * scaling.length)
         return ReversingTable(t) if reverse else t
 
-    world = World(solved.name, solved.scenario.shapes, table(solved.value), p, scale=scaling.length)
+    grid = scaling.grid_to_robot(solved.grid)
+    target = RegularGridInterpolator((grid.axis(0), grid.axis(1)), solved.target[:, :, 0, 0] * scaling.length,
+                                     bounds_error=False, fill_value=None)
+    world = World(solved.name, solved.scenario.shapes, table(solved.value), p, scale=scaling.length,
+                  grid_clearance=target)
     return world, {TRUTH: world.truth, **{label: table(v) for label, v in predicted.items()}}
 
 
@@ -115,9 +122,13 @@ def make_filter(choice: FilterChoice, world: World, tables: dict[str, ValueTable
                                    footprint_margin=stop.footprint_margin * world.scale)
         return lambda s, nominal: stop_zone_filter(stop, world.clearance, s, nominal)
     table = tables[choice.source]
-    eps = choice.epsilon * world.scale + sampling_margin(world.params, dt)  # as brt_node composes its default ε
+    ahead = choice.mode == "least_restrictive"  # looks one period ahead: no sampling margin (as brt_node)
+    eps = choice.epsilon * world.scale + (0.0 if ahead else sampling_margin(world.params, dt))
     settings = FilterSettings(epsilon=eps, mode=choice.mode, dt=dt, decay_rate=decay_rate,
                               blend_width=FilterSettings.blend_width * world.scale)
+    if ahead:
+        cert = certificate(world.params, world.grid_clearance, table, eps)
+        return lambda s, nominal: filter_least_restrictive(world.params, settings, cert, s, nominal)[:2]
     return lambda s, nominal: filter_batch(world.params, settings, s, *table.value_and_gradient(s), nominal)
 
 

@@ -1,8 +1,10 @@
-"""The product model's behaviour scenes (issue 41): a robot that can stop and reverse, near walls.
+"""The product models' behaviour scenes: a robot that can stop and reverse, near walls.
 
 One 8 m × 6 m map holds every scene: a wall 1 m ahead of a robot at rest, a 1.6 m wide dead-end corridor,
 a wall behind a reversing robot (moving, and at rest), a robot beside a wall asked to spin, a robot inside a
-wall.  Each scene is a start state (x, y, v, θ), a constant nominal command and a duration; :func:`judge` says
+wall.  The differential drive (:data:`DIFF_DRIVE_SCENES`) has its own: it turns in place where the car cannot,
+escapes backwards or by turning from rest inside the margin, and accelerates from rest to full speed in the open.
+Each scene is a start state (x, y, v, θ), a constant nominal command and a duration; :func:`judge` says
 what must hold.
 The scenes run offline against a table (:func:`simulate`) and over DDS with brt_node
 (:mod:`hjrno_ros.ros.scene_driver`).
@@ -14,8 +16,8 @@ import dataclasses
 
 import numpy as np
 
-from hjrno_ros.core import geometry, safety_filter
-from hjrno_ros.core.dynamics import CarParams
+from hjrno_ros.core import geometry, least_restrictive, safety_filter
+from hjrno_ros.core.dynamics import CarParams, DiffDriveParams, RobotParams
 from hjrno_ros.core.value_table import ValueTable
 from hjrno_ros.studies.closed_loop import base_step
 
@@ -51,6 +53,19 @@ SCENES = (
     Scene("spin", (5.5, 1.0, 0.0, 0.0), (0.0, 1.0), 3.0, "spin in place 0.5 m from a wall: no motion added"),
     Scene("inside_wall", (6.1, 2.0, 0.0, 0.0), (0.3, 0.5), 2.0, "inside a wall: never more speed than the nominal"),
 )
+DIFF_DRIVE_SCENES = (
+    *(s for s in SCENES if s.name not in ("spin", "rest_reverse")),
+    Scene("rest_reverse", (0.3, 2.0, 0.0, 0.0), (-0.3, 0.0), 3.0,
+          "at rest 0.1 m before a wall behind (inside the margin), nominal reverse: stays at rest"),
+    Scene("spin_in_place", (5.5, 1.0, 0.0, 0.0), (0.0, 1.0), 3.0,
+          "spin in place 0.5 m from a wall: it turns (> 2 rad), no x-y motion"),
+    Scene("escape_back", (5.9, 1.5, 0.0, 0.0), (-0.3, 0.0), 4.0,
+          "at rest 0.1 m from the wall ahead (inside the margin), nominal reverse: backs out of the margin"),
+    Scene("escape_turn", (5.9, 2.0, 0.0, 0.0), (0.0, 1.0), 3.0,
+          "at rest 0.1 m from the wall ahead (inside the margin), nominal spin: turns in place"),
+    Scene("accelerate", (1.0, 1.0, 0.0, 0.5), (1.0, 0.0), 1.6,
+          "from rest in the open, nominal v_max: reaches 0.9 v_max, never changed"),
+)
 
 
 def scene_map() -> np.ndarray:
@@ -85,10 +100,38 @@ def judge(scene: Scene, states: np.ndarray, outputs: np.ndarray) -> list[str]:
             problems.append("a non-zero speed was commanded at rest")
     if scene.name in ("rest_forward", "reverse", "dead_end") and abs(states[-1, 2]) > 0.05:
         problems.append(f"still moving at {states[-1, 2]:.3f} m/s at the end")
+    if scene.name in ("spin_in_place", "escape_turn"):
+        moved = np.linalg.norm(states[:, :2] - states[0, :2], axis=-1).max()
+        turned = np.abs(np.diff(np.unwrap(states[:, 3]))).sum()
+        if moved > 1e-3 or turned < 2.0:
+            problems.append(f"moved {moved:.4f} m, turned {turned:.2f} rad")
+    if scene.name == "escape_back" and clearance(states[-1:, :2])[0] < clearance(states[:1, :2])[0] + 0.2:
+        problems.append(f"backed out only to {clearance(states[-1:, :2])[0]:.3f} m from the wall")
+    if scene.name == "accelerate":
+        if states[:, 2].max() < 0.9 * scene.nominal[0]:
+            problems.append(f"reached only {states[:, 2].max():.3f} m/s")
+        if len(outputs) and np.abs(outputs - scene.nominal).max() > 1e-9:
+            problems.append("a command in the open was changed")
     return problems
 
 
-def simulate(params: CarParams, table: ValueTable, settings: safety_filter.FilterSettings, scene: Scene,
+def decide(params: RobotParams, table, settings: safety_filter.FilterSettings, state: np.ndarray,
+           nominal: tuple[float, float]) -> safety_filter.Decision:
+    """The filter's decision at ``state`` on the scenes' map, as brt_node makes it (least_restrictive: the
+    certificate's braking bound on the map grown by the table grid's h/√2)."""
+    if settings.mode == "least_restrictive":
+        grow = table.grid.half_cell_diagonal
+
+        def inflated(points: np.ndarray) -> np.ndarray:
+            return clearance(points) - grow
+
+        cert = least_restrictive.certificate(params, inflated, table, settings.epsilon)
+        return least_restrictive.decide(params, settings, cert, state, *nominal)
+    values, grads = table.value_and_gradient(state)
+    return safety_filter.filter_command(params, settings, state, float(values[0]), grads[0], *nominal)
+
+
+def simulate(params: RobotParams, table, settings: safety_filter.FilterSettings, scene: Scene,
              seed: int = 0, dt: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
     """The scene offline: the base integrates the filtered command (RK4, ``dt``) with a random disturbance
     ‖d‖ ≤ δ·|v| + d₀; the filter runs every control period.  (states (k, 4), outputs (m, 2))."""
@@ -101,8 +144,7 @@ def simulate(params: CarParams, table: ValueTable, settings: safety_filter.Filte
         if k % every == 0:
             s = x[0].copy()
             s[2] = np.clip(s[2], params.v_min, params.v_max)
-            values, grads = table.value_and_gradient(s)
-            d = safety_filter.filter_command(params, settings, s, float(values[0]), grads[0], *scene.nominal)
+            d = decide(params, table, settings, s, scene.nominal)
             twist = np.array([[d.linear, d.angular]])
             outputs.append(twist[0].copy())
         x = base_step(params, x, twist, settings.dt, dt, rng)
@@ -110,13 +152,13 @@ def simulate(params: CarParams, table: ValueTable, settings: safety_filter.Filte
     return np.array(states), np.array(outputs)
 
 
-def solve_scene_table(params: CarParams, cell: float = 0.2, speeds: int = 7, headings: int = 16,
+def solve_scene_table(params: RobotParams, cell: float = 0.2, speeds: int = 7, headings: int = 16,
                       horizon: float = 60.0) -> ValueTable:
     """The ground truth for the scenes' map: the solver from the target (obstacles grown by h/√2 of the grid, as
     the node does), until it settles or ``horizon`` simulated s."""
     from hjrno_ros.core.model_card import ModelCard
     from hjrno_ros.truth import refinement
-    from hjrno_ros.truth.systems import DynamicDubinsCar
+    from hjrno_ros.truth.systems import robot_system
 
     card = ModelCard.from_dict(ModelCard.solver(params, cell, speeds, headings))
     far = (ORIGIN[0] + SIZE[0] * RESOLUTION, ORIGIN[1] + SIZE[1] * RESOLUTION)
@@ -124,20 +166,20 @@ def solve_scene_table(params: CarParams, cell: float = 0.2, speeds: int = 7, hea
     xy = np.stack(np.meshgrid(grid.axis(0), grid.axis(1), indexing="ij"), -1)
     v0 = (clearance(xy) - grid.half_cell_diagonal).astype(np.float32)
     target = refinement.broadcast_target(v0, grid)
-    *_, (_, values, _) = refinement.refine(DynamicDubinsCar(params), grid, target, target, horizon, horizon)
+    *_, (_, values, _) = refinement.refine(robot_system(params), grid, target, target, horizon, horizon)
     return ValueTable(grid, values)
 
 
-def run_all(params: CarParams, out: str | None = None, epsilon: float = 0.1) -> str:
+def run_all(params: RobotParams, scenes: tuple[Scene, ...], out: str | None = None, epsilon: float = 0.1) -> str:
     """Every scene in every filter mode against the solved table (``hjrno simulate --scenes product``): a
-    markdown table (also written to ``out``/scenes.md when given)."""
+    markdown table (also appended to ``out``/scenes.md when given)."""
     from pathlib import Path
 
     table = solve_scene_table(params)
     lines = [f"# Product scenes ({params})", "",
              "| scene | mode | problems | min clearance m | final speed m/s | max output speed m/s |",
              "| --- | --- | --- | --- | --- | --- |"]
-    for scene in SCENES:
+    for scene in scenes:
         for mode in safety_filter.MODES:
             states, outputs = simulate(params, table, safety_filter.FilterSettings(epsilon=epsilon, mode=mode), scene)
             problems = judge(scene, states, outputs)
@@ -147,13 +189,26 @@ def run_all(params: CarParams, out: str | None = None, epsilon: float = 0.1) -> 
     text = "\n".join(lines) + "\n"
     if out is not None:
         Path(out).mkdir(parents=True, exist_ok=True)
-        (Path(out) / "scenes.md").write_text(text)
+        with open(Path(out) / "scenes.md", "a") as f:
+            f.write(text + "\n")
     return text
 
 
+ROBOTS = {"car": (CarParams.product(v_min=-0.5), SCENES),
+          "diff_drive": (DiffDriveParams(v_min=-0.5), DIFF_DRIVE_SCENES)}
+
+
 def main(out) -> int:
-    """``hjrno simulate --scenes product``: every scene under every filter mode for a reversing product robot;
-    prints scenes.md; 0 when every row was written."""
-    text = run_all(CarParams.product(v_min=-0.5), out)
-    print(text)
-    return 0 if text.count("| none |") == len(SCENES) * 3 else 1
+    """``hjrno simulate --scenes product``: every scene under every filter mode for a reversing product car and a
+    reversing differential drive; prints scenes.md; 0 when every scene passed in the least-restrictive mode (the
+    node's default) and every row was written."""
+    if out is not None:
+        from pathlib import Path
+
+        (Path(out) / "scenes.md").unlink(missing_ok=True)
+    failed = 0
+    for params, scenes in ROBOTS.values():
+        text = run_all(params, scenes, out)
+        print(text)
+        failed += sum(1 for line in text.splitlines() if "| least_restrictive |" in line and "| none |" not in line)
+    return int(failed > 0)

@@ -13,11 +13,11 @@ from collections.abc import Callable
 import numpy as np
 
 from hjrno_ros.core.dynamics import (
-    CarParams,
-    car_disturbance_bound,
-    car_f,
-    car_optimal_control,
-    car_worst_disturbance,
+    RobotParams,
+    disturbance_bound,
+    optimal_control,
+    robot_f,
+    worst_disturbance,
 )
 from hjrno_ros.core.value_table import ValueTable
 
@@ -98,19 +98,19 @@ def ball_noise(d_max: float, rng: np.random.Generator) -> Feedback:
     return lambda states: ball(rng, (states.shape[0],), d_max)
 
 
-def car_random_disturbance(params: CarParams, rng: np.random.Generator) -> Feedback:
-    """The car's random disturbance: uniform in its disk ‖d‖ ≤ δ·|v| + d₀ at each state, drawn anew at
+def random_disturbance(params: RobotParams, rng: np.random.Generator) -> Feedback:
+    """The robot's random disturbance: uniform in its disk ‖d‖ ≤ δ·|v| + d₀ at each state, drawn anew at
     every step (the paper's car: ‖d‖ ≤ d₀ everywhere)."""
-    return lambda states: car_disturbance_bound(params, states[:, 2])[:, None] * ball(rng, (states.shape[0],), 1.0)
+    return lambda states: disturbance_bound(params, states[:, 2])[:, None] * ball(rng, (states.shape[0],), 1.0)
 
 
-def car_optimal_feedback(params: CarParams, table: ValueTable) -> tuple[Feedback, Feedback]:
-    """The safest control and the worst disturbance of the car, both from ∇V of a value table."""
+def optimal_feedback(params: RobotParams, table: ValueTable) -> tuple[Feedback, Feedback]:
+    """The safest control and the worst disturbance of the robot, both from ∇V of a value table."""
     return (
-        lambda s: car_optimal_control(params, s, table.gradient(s)),
-        lambda s: car_worst_disturbance(params, s, table.gradient(s)),
+        lambda s: optimal_control(params, s, table.gradient(s)),
+        lambda s: worst_disturbance(params, s, table.gradient(s)),
     )
 
 
-def car_dynamics(params: CarParams) -> Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]:
-    return lambda s, u, d: car_f(params, s, u, d)
+def robot_dynamics(params: RobotParams) -> Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]:
+    return lambda s, u, d: robot_f(params, s, u, d)

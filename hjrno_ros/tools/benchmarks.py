@@ -208,8 +208,15 @@ def write_table(out: Path, stem: str, title: str, rows: list[dict], note: str) -
 
 
 def dispatch(what: str, out: Path, quick: bool = False, only: str | None = None, model: str | None = None,
-             episodes: int = 200, seconds: float | None = None) -> int:
-    """``hjrno bench WHAT``: the depot check and the fuzz soak (each its own module), or :func:`run`'s benches."""
+             episodes: int | None = None, seconds: float | None = None, select: dict | None = None) -> int:
+    """``hjrno bench WHAT``: the depot check, the navigation benchmark and the fuzz soak (each its own module), or
+    :func:`run`'s benches.  ``select``: the navigation benchmark's robots, maps, drivers and filters."""
+    if what == "nav":
+        from hjrno_ros.tools import nav_bench
+
+        return nav_bench.run(out, episodes=episodes or 3, model=model, seconds=seconds,
+                             **{k: tuple(v.split(",")) for k, v in (select or {}).items() if v})
+    episodes = 200 if episodes is None else episodes
     if what == "depot":
         from hjrno_ros.tools import depot_check
 

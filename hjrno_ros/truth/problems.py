@@ -2,8 +2,8 @@
 
 Each is deterministic: dynamics, grid, target l and the solve settings that suit it.  The car
 problems take the robot model (``params``; default the paper's car, :meth:`CarParams.paper`, which the
-reproduction tables use; :meth:`CarParams.product` is the product robot); the grid's speed axis is
-the model's [v_min, v_max].
+reproduction tables use; :meth:`CarParams.product` is the product car, :class:`DiffDriveParams` the
+differential drive); the grid's speed axis is the model's [v_min, v_max].
 """
 
 from __future__ import annotations
@@ -13,11 +13,11 @@ from collections.abc import Callable
 
 import numpy as np
 
-from hjrno_ros.core.dynamics import Air3DParams, CarParams
+from hjrno_ros.core.dynamics import Air3DParams, CarParams, RobotParams
 from hjrno_ros.core.geometry import Box, Disk, Shape, air3d_collision_sdf, union_sdf
 from hjrno_ros.core.grids import GridSpec, air3d_grid, car_grid
 from hjrno_ros.truth.scenarios import make_scenario
-from hjrno_ros.truth.systems import Air3D, DynamicDubinsCar
+from hjrno_ros.truth.systems import Air3D, robot_system
 
 DEFAULT_CAR_SHAPE = (40, 40, 12, 20)
 DEFAULT_AIR3D_SHAPE = (51, 40, 50)
@@ -39,19 +39,19 @@ class Problem:
         return union_sdf(self.shapes, np.asarray(states)[..., :2])
 
 
-def _car_grid(shape: tuple[int, ...], params: CarParams) -> GridSpec:
+def _car_grid(shape: tuple[int, ...], params: RobotParams) -> GridSpec:
     return car_grid(shape, v_range=(params.v_min, params.v_max))
 
 
-def disk(shape=DEFAULT_CAR_SHAPE, params: CarParams = CarParams()) -> Problem:
+def disk(shape=DEFAULT_CAR_SHAPE, params: RobotParams = CarParams()) -> Problem:
     grid = _car_grid(shape, params)
     shapes = (Disk((0.0, 0.0), 1.0),)
     target = union_sdf(shapes, grid.states()[..., :2]).astype(np.float32)
     return Problem("disk", "dynamic Dubins car, disk obstacle r = 1 m at the centre of a 10 m x 10 m window",
-                   DynamicDubinsCar(params), grid, target, shapes, {"criterion": "interior"})
+                   robot_system(params), grid, target, shapes, {"criterion": "interior"})
 
 
-def room(shape=DEFAULT_CAR_SHAPE, params: CarParams = CarParams()) -> Problem:
+def room(shape=DEFAULT_CAR_SHAPE, params: RobotParams = CarParams()) -> Problem:
     """Converged is judged near V = 0: inside the walls V keeps sinking towards the extrapolated edge."""
     grid = _car_grid(shape, params)
     t, h = 0.4, 5.0  # wall thickness and half the room size, m
@@ -63,17 +63,17 @@ def room(shape=DEFAULT_CAR_SHAPE, params: CarParams = CarParams()) -> Problem:
     )
     target = union_sdf(shapes, grid.states()[..., :2]).astype(np.float32)
     return Problem("room", "dynamic Dubins car in a closed 10 m x 10 m room with 0.4 m walls",
-                   DynamicDubinsCar(params), grid, target, shapes, {"criterion": "band", "max_horizon": 60.0})
+                   robot_system(params), grid, target, shapes, {"criterion": "band", "max_horizon": 60.0})
 
 
-def indoor(shape=DEFAULT_CAR_SHAPE, params: CarParams = CarParams()) -> Problem:
+def indoor(shape=DEFAULT_CAR_SHAPE, params: RobotParams = CarParams()) -> Problem:
     """Scene ``INDOOR_SEED`` of the indoor family; judged on the band, as the indoor datasets are."""
     fields = {k: v for k, v in params.as_dict().items() if k != "model"}
     scenario = make_scenario("indoor", INDOOR_SEED, **fields)
     grid = scenario.grid(shape)
     return Problem("indoor", f"dynamic Dubins car in indoor scene {INDOOR_SEED}: outer walls, "
                    f"{scenario.params['n_walls']} interior wall(s) with doors, {scenario.params['n_clutter']} clutter "
-                   "item(s), 10 m x 10 m", DynamicDubinsCar(params), grid, scenario.target(grid), scenario.shapes,
+                   "item(s), 10 m x 10 m", robot_system(params), grid, scenario.target(grid), scenario.shapes,
                    {"criterion": "band", "max_horizon": 60.0})
 
 
@@ -89,7 +89,7 @@ PROBLEMS: dict[str, Callable[..., Problem]] = {"disk": disk, "room": room, "indo
 CAR_PROBLEMS = ("disk", "room", "indoor")
 
 
-def make_problem(name: str, shape: tuple[int, ...] | None = None, params: CarParams | None = None) -> Problem:
+def make_problem(name: str, shape: tuple[int, ...] | None = None, params: RobotParams | None = None) -> Problem:
     """Problem ``name`` on ``shape`` (default: its own); ``params``: a car problem's robot model."""
     if name not in PROBLEMS:
         raise ValueError(f"unknown problem {name!r}; choose from {', '.join(PROBLEMS)}")

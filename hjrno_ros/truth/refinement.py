@@ -142,7 +142,7 @@ def run_request(workdir: Path) -> None:
 
     from hjrno_ros.core.model_card import ModelCard
     from hjrno_ros.learning.value_function import LearnedValueFunction
-    from hjrno_ros.truth.systems import DynamicDubinsCar
+    from hjrno_ros.truth.systems import robot_system
 
     grid, v0, meta = read_table(workdir / REQUEST)
     card = ModelCard.load(meta["model"])
@@ -153,7 +153,7 @@ def run_request(workdir: Path) -> None:
     else:
         vf = LearnedValueFunction(meta["model"], threads=1)
         params, initial = vf.params, warm_start(vf, v0, grid)
-    for done, table, settled in refine(DynamicDubinsCar(params), grid, target, initial, float(meta["horizon"]),
+    for done, table, settled in refine(robot_system(params), grid, target, initial, float(meta["horizon"]),
                                        float(meta["stage"])):
         info = {"grid": meta["grid"], "horizon": repr(done), "settled": str(settled),
                 "wall_s": f"{time.perf_counter() - start:.2f}", "cpus": str(len(os.sched_getaffinity(0)))}

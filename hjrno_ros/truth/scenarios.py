@@ -23,11 +23,11 @@ family index keeps equal seeds of different families independent).  Every sample
 drawn even when the caller overrides it, so an override changes only what depends on it
 (e.g. the same parametric seed gives the same obstacle for every (a_max, κ_max)).
 Each family declares its sampling ranges once, in :data:`FAMILIES`.  Overrides of geometric
-parameters must lie in those ranges; overrides of dynamics parameters (CarParams or
+parameters must lie in those ranges; overrides of dynamics parameters (CarParams, DiffDriveParams or
 Air3DParams fields) only need to be physically valid, so a model can be tested outside the
-training box.  The car families take the robot model as the option ``robot`` ("paper", the default
-the reproduction datasets use, or "product"; docs/design.md, "Robot models"), whose values the
-CarParams options then change; a scenario's ``params`` hold the resulting model (``CarParams.as_dict``).
+training box.  The ground-robot families take the robot model as the option ``robot`` ("paper", the default
+the reproduction datasets use, "product", or "diff_drive"; docs/design.md, "Robot models"), whose values the
+dynamics options then change; a scenario's ``params`` hold the resulting model (its ``as_dict``).
 """
 
 from __future__ import annotations
@@ -40,12 +40,12 @@ from typing import Any
 
 import numpy as np
 
-from hjrno_ros.core.dynamics import Air3DParams, CarParams, car_preset
+from hjrno_ros.core.dynamics import Air3DParams, CarParams, DiffDriveParams, RobotParams, car_preset, robot_from_dict
 from hjrno_ros.core.geometry import ClosedSpline, air3d_collision_sdf, shape_from_dict, union_sdf
 from hjrno_ros.core.grids import GridSpec, air3d_grid, car_grid
 from hjrno_ros.truth.floor_plans import PLAN_STYLES, build_indoor, build_plans, build_windows
 from hjrno_ros.truth.shapes import DOMAIN_HI, DOMAIN_LO, ROUNDNESS, random_smooth_shape
-from hjrno_ros.truth.systems import Air3D, DynamicDubinsCar
+from hjrno_ros.truth.systems import Air3D, DynamicDubinsCar, robot_system
 
 __all__ = ["DOMAIN_HI", "DOMAIN_LO", "FAMILIES", "Scenario", "make_scenario", "random_smooth_shape"]
 EDGE_MARGIN = 0.5  # m, free band between obstacles (grown ones included) and the domain edge
@@ -92,18 +92,20 @@ class Scenario:
     def is_air3d(self) -> bool:
         return FAMILIES[self.family].kind == "air3d"
 
-    def dynamics_params(self) -> CarParams | Air3DParams:
-        """The dynamics' parameters; a car scenario stored before the product model (``d_max``) is the paper's car."""
+    def dynamics_params(self) -> RobotParams | Air3DParams:
+        """The dynamics' parameters (``params["model"]`` names the ground robot); a car scenario stored before the
+        product model (``d_max``) is the paper's car."""
         if self.is_air3d:
             return Air3DParams(**{f.name: self.params[f.name] for f in dataclasses.fields(Air3DParams)
                                   if f.name in self.params})
-        names = ("model", "d_max", *(f.name for f in dataclasses.fields(CarParams)))
-        return CarParams.from_dict({k: self.params[k] for k in names if k in self.params})
+        cls = DiffDriveParams if self.params.get("model") == DiffDriveParams.model else CarParams
+        names = ("model", "d_max", *(f.name for f in dataclasses.fields(cls)))
+        return robot_from_dict({k: self.params[k] for k in names if k in self.params})
 
     def dynamics(self) -> DynamicDubinsCar | Air3D:
         """The ``hj_reachability`` dynamics with this scenario's parameters."""
         p = self.dynamics_params()
-        return Air3D(p) if self.is_air3d else DynamicDubinsCar(p)
+        return Air3D(p) if self.is_air3d else robot_system(p)
 
     def grid(self, shape: tuple[int, ...] | None = None) -> GridSpec:
         """Default grid: Air3D's relative domain, or the car's [-5, 5]² × [v_min, v_max] × [-π, π)."""
@@ -189,9 +191,12 @@ class _Draw:
         return value
 
     def dynamics(self, cls: type, **values: float) -> dict[str, Any]:
-        """Fields of CarParams / Air3DParams: given values, else overrides, else defaults (validated); the
-        car's defaults are those of the robot model named by the option ``robot`` (default "paper")."""
+        """Fields of the ground robot's parameters / Air3DParams: given values, else overrides, else defaults
+        (validated).  For a ground robot (``cls`` CarParams) the option ``robot`` names the model and its defaults
+        ("paper", the default, "product" or "diff_drive")."""
         defaults = car_preset(self.overrides.get("robot", "paper")) if cls is CarParams else cls()
+        cls = type(defaults)
+        values = {k: v for k, v in values.items() if k in {f.name for f in dataclasses.fields(cls)}}
         fields = {}
         for f in dataclasses.fields(cls):
             raw = values.get(f.name, self.overrides.get(f.name, getattr(defaults, f.name)))
@@ -290,9 +295,10 @@ class FamilySpec:
     @property
     def options(self) -> tuple[str, ...]:
         """Names ``make_scenario`` accepts as overrides."""
-        dyn = Air3DParams if self.kind == "air3d" else CarParams
+        dyn = (Air3DParams,) if self.kind == "air3d" else (CarParams, DiffDriveParams)
         names = [k for k in self.ranges if k not in _LAW_KEYS] + ([] if self.kind == "air3d" else ["robot"])
-        return tuple(sorted({*names, *self.choices, *self.extra_options, *(f.name for f in dataclasses.fields(dyn))}))
+        return tuple(sorted({*names, *self.choices, *self.extra_options,
+                             *(f.name for cls in dyn for f in dataclasses.fields(cls))}))
 
 
 _LAW_KEYS = {f"{law}_{c}" for law in VELOCITY_LAWS for c in "ck"}

@@ -1,4 +1,4 @@
-"""The car and Air3D as ``hj_reachability`` dynamics: the shared formulas of
+"""The ground robots (car, differential drive) and Air3D as ``hj_reachability`` dynamics: the shared formulas of
 :mod:`hjrno_ros.core.dynamics` evaluated with ``jax.numpy``, and the grid conversion."""
 
 from __future__ import annotations
@@ -12,13 +12,16 @@ import numpy as np
 from hjrno_ros.core.dynamics import (
     Air3DParams,
     CarParams,
+    DiffDriveParams,
+    RobotParams,
     _concrete,
     air3d_f,
     air3d_optimal_control,
     air3d_worst_disturbance,
-    car_disturbance_bound,
-    car_f,
-    car_optimal_control,
+    disturbance_bound,
+    optimal_control,
+    robot_f,
+    turn_gain,
     worst_direction,
 )
 from hjrno_ros.core.grids import GridSpec
@@ -61,42 +64,55 @@ class _SharedFormulas(hj.ControlAndDisturbanceAffineDynamics):
 
 
 class DynamicDubinsCar(_SharedFormulas):
-    """The dynamic Dubins car as ``hj_reachability`` dynamics; control maximises, disturbance minimises.
+    """A ground robot (the dynamic Dubins car, or with :class:`DiffDrive` the differential drive) as
+    ``hj_reachability`` dynamics; control maximises, disturbance minimises.
 
     The disturbance bound δ·|v| + d₀ depends on the state, an hj disturbance space cannot: the
     disturbance variable here is e in the unit ball and the position disturbance is
     d = (δ·|v| + d₀)·e, so the disturbance Jacobian carries the bound.  Then hj's Lax-Friedrichs
     dissipation sees the right magnitude, and the Hamiltonian's disturbance term is
-    −(δ·|v| + d₀)·‖∇ₓᵧV‖, the same worst case as :func:`~hjrno_ros.core.dynamics.car_worst_disturbance`.
+    −(δ·|v| + d₀)·‖∇ₓᵧV‖, the same worst case as :func:`~hjrno_ros.core.dynamics.worst_disturbance`.
     """
 
     state_names = ("x", "y", "v", "theta")
 
-    def __init__(self, params: CarParams = CarParams()):
+    def __init__(self, params: RobotParams = CarParams()):
         p = params
         super().__init__(
             p,
-            hj.sets.Box(jnp.array([-p.a_max, -p.kappa_max]), jnp.array([p.a_max, p.kappa_max])),
+            hj.sets.Box(jnp.array([-p.a_max, -p.turn_max]), jnp.array([p.a_max, p.turn_max])),
             hj.sets.Ball(jnp.zeros(2), 1.0),
         )
 
     def __call__(self, state, control, disturbance, time):
-        bound = car_disturbance_bound(self.params, state[..., 2], jnp)[..., None]
-        return car_f(self.params, state, control, bound * disturbance, jnp)
+        bound = disturbance_bound(self.params, state[..., 2], jnp)[..., None]
+        return robot_f(self.params, state, control, bound * disturbance, jnp)
 
     def optimal_control_and_disturbance(self, state, time, grad_value):
-        return car_optimal_control(self.params, state, grad_value, jnp), worst_direction(grad_value, jnp)
+        return optimal_control(self.params, state, grad_value, jnp), worst_direction(grad_value, jnp)
 
     def open_loop_dynamics(self, state, time):
         v, theta = state[2], state[3]
         return jnp.array([v * jnp.cos(theta), v * jnp.sin(theta), 0.0, 0.0])
 
     def control_jacobian(self, state, time):
-        return jnp.array([[0.0, 0.0], [0.0, 0.0], [1.0, 0.0], [0.0, state[2]]])
+        return jnp.array([[0.0, 0.0], [0.0, 0.0], [1.0, 0.0], [0.0, turn_gain(self.params, state[2], jnp)]])
 
     def disturbance_jacobian(self, state, time):
-        b = car_disturbance_bound(self.params, state[2], jnp)
+        b = disturbance_bound(self.params, state[2], jnp)
         return jnp.array([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0], [0.0, 0.0]]) * b
+
+
+class DiffDrive(DynamicDubinsCar):
+    """The differential drive: the same equations with θ̇ = u₂, |u₂| ≤ ω_max (it turns in place)."""
+
+    def __init__(self, params: DiffDriveParams = DiffDriveParams()):
+        super().__init__(params)
+
+
+def robot_system(params: RobotParams) -> DynamicDubinsCar:
+    """The ``hj_reachability`` dynamics of a ground robot's parameters."""
+    return DiffDrive(params) if isinstance(params, DiffDriveParams) else DynamicDubinsCar(params)
 
 
 class Air3D(_SharedFormulas):

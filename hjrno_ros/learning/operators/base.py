@@ -66,7 +66,7 @@ class NeuralOperator(nn.Module):
     """Shared base: config storage and validation, coordinate channels, output prior.
 
     Subclasses set ``kind`` and implement ``forward_raw(z)`` where ``z`` is the input with
-    coordinate channels appended (``in_channels + 2`` channels) and the result has 1 channel.
+    coordinate channels appended (``in_channels + 2`` channels) and the result has 1 channel (or ``out_channels``).
     """
 
     kind: ClassVar[str] = ""
@@ -84,7 +84,7 @@ class NeuralOperator(nn.Module):
         raise TypeError(f"{type(self).__name__} must define forward_raw")
 
     def forward(self, x: Tensor) -> Tensor:
-        """[B, in_channels, Nx, Ny] -> [B, 1, Nx, Ny]."""
+        """[B, in_channels, Nx, Ny] -> [B, out_channels, Nx, Ny] (1 unless the config says otherwise)."""
         if x.ndim != 4 or x.shape[1] != self.in_channels:
             raise ValueError(f"expected input [B, {self.in_channels}, Nx, Ny], got {tuple(x.shape)}")
         return apply_prior(self.prior, x, self.forward_raw(coordinates(x)))

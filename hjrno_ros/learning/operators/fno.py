@@ -110,9 +110,10 @@ class SpectralConv2d(nn.Module):
 
 
 class FNO(NeuralOperator):
-    """Fourier neural operator: [B, in_channels, Nx, Ny] -> [B, 1, Nx, Ny] at any resolution.
+    """Fourier neural operator: [B, in_channels, Nx, Ny] -> [B, out_channels, Nx, Ny] at any resolution.
 
-    Config: ``in_channels`` (required), ``width=24``, ``modes=12``, ``n_layers=4``, ``proj=64``,
+    Config: ``in_channels`` (required), ``out_channels=1`` (a whole (v, θ) table: one channel per slice, see
+    :class:`hjrno_ros.learning.slices.InputSpec`), ``width=24``, ``modes=12``, ``n_layers=4``, ``proj=64``,
     ``padding=0.125`` (fraction of the window added per side: the FFT runs on
     ``round((1 + 2 padding)(n - 1))`` nodes, at least n + 2; 0 = periodic input, no padding; at
     most 0.5), ``pad_mode="blend"`` ("blend" | "reflect" | "zeros"), ``prior="none"``
@@ -125,6 +126,7 @@ class FNO(NeuralOperator):
         self,
         *,
         in_channels: int,
+        out_channels: int = 1,
         width: int = 24,
         modes: int = 12,
         n_layers: int = 4,
@@ -143,12 +145,15 @@ class FNO(NeuralOperator):
             "pad_mode": check_choice("pad_mode", pad_mode, PAD_MODES),
             "prior": prior,
         }
+        if out_channels != 1:  # cards of single-slice models keep the config they always had
+            config["out_channels"] = check_int("out_channels", out_channels, 1)
         super().__init__(config)
         c = config
         self.lift = nn.Conv2d(c["in_channels"] + 2, c["width"], 1)
         self.spectral = nn.ModuleList(SpectralConv2d(c["width"], c["width"], c["modes"]) for _ in range(c["n_layers"]))
         self.pointwise = nn.ModuleList(nn.Conv2d(c["width"], c["width"], 1) for _ in range(c["n_layers"]))
-        self.project = nn.Sequential(nn.Conv2d(c["width"], c["proj"], 1), nn.GELU(), nn.Conv2d(c["proj"], 1, 1))
+        self.project = nn.Sequential(nn.Conv2d(c["width"], c["proj"], 1), nn.GELU(),
+                                     nn.Conv2d(c["proj"], out_channels, 1))
 
     def forward_raw(self, z: Tensor) -> Tensor:
         nx, ny = z.shape[2], z.shape[3]

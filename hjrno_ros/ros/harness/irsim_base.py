@@ -1,0 +1,154 @@
+"""A robot in IR-SIM behind ROS 2 topics, in real time: the navigation benchmark's and the demo's base.
+
+:class:`IrSimBase` latches the map (reliable + transient local), publishes odometry in the map frame from IR-SIM's
+pose and velocity every ``step_time``, runs a driver (:class:`~hjrno_ros.studies.navigation.GoalDriver`) that sends
+the nominal TwistStamped on ``cmd_vel_smoothed``, and steps IR-SIM in real time with the *filtered* command from
+``cmd_vel``; a filtered command older than ``cmd_timeout`` counts as zero (a base's watchdog).  ``direct``: no
+filter in the loop, the base executes the nominal.  IR-SIM decides collisions.  Filtered commands are matched to
+the nominal they answer by stamp: a change counts as an intervention, a zero command answering nothing (the node's
+own timer) as a fail-closed stop; the node's status counts all its fail-closed stops.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from collections.abc import Callable
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import TwistStamped
+from nav_msgs.msg import OccupancyGrid, Odometry
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from std_msgs.msg import String
+
+from hjrno_ros.ros.messages import LATCHED, occupancy_message, odometry_message
+from hjrno_ros.studies.navigation import STOPPED_SPEED, STOPPED_TURN, EpisodeResult, GoalDriver, NavMap
+
+
+@dataclasses.dataclass
+class BaseLog:
+    trace: list = dataclasses.field(default_factory=list)  # (t, x, y, v, θ, changed) per step
+    grids: list = dataclasses.field(default_factory=list)  # (t, origin, resolution, unsafe mask [ix, iy])
+    latency_s: list = dataclasses.field(default_factory=list)
+    commands: int = 0
+    changed: int = 0
+    stopped: int = 0
+    stops_before: int = 0  # the node's fail-closed stop count when the episode began
+    collided_at: float | None = None
+    status: dict = dataclasses.field(default_factory=dict)
+
+
+class IrSimBase(Node):
+    def __init__(self, world, nav_map: NavMap, driver: GoalDriver, step_time: float = 0.05, direct: bool = False,
+                 cmd_timeout: float = 0.25, context=None, name: str = "irsim_base") -> None:
+        super().__init__(name, context=context)
+        self.world, self.driver, self.step_time, self.direct = world, driver, step_time, direct
+        self.cmd_timeout = cmd_timeout
+        self.log = BaseLog()
+        self.running = False
+        self.t0 = time.monotonic()
+        self._filtered, self._filtered_at = np.zeros(2), -math.inf
+        self._sent: dict[tuple[int, int], tuple[float, np.ndarray]] = {}
+        self._changed = False
+        self.map_pub = self.create_publisher(OccupancyGrid, "map", LATCHED)
+        self.odom_pub = self.create_publisher(Odometry, "odom", 10)
+        self.cmd_pub = self.create_publisher(TwistStamped, "cmd_vel_smoothed", 10)
+        self.create_subscription(TwistStamped, "cmd_vel", self._on_cmd, 50)
+        self.create_subscription(OccupancyGrid, "brt/value_grid", self._on_grid, LATCHED)
+        self.create_subscription(String, "brt/status", lambda m: setattr(self.log, "status", json.loads(m.data)), 10)
+        grid = occupancy_message(nav_map.occupancy(), nav_map.resolution, nav_map.origin)
+        grid.header.stamp = self.get_clock().now().to_msg()
+        self.map_pub.publish(grid)
+        self.create_timer(step_time, self._tick)
+
+    def now(self) -> float:
+        return time.monotonic() - self.t0
+
+    def _tick(self) -> None:
+        """Every step_time: the nominal command out, IR-SIM one step with the latest filtered one, odometry out."""
+        x, y, theta = self.world.pose
+        v, omega = self.world.velocity
+        if self.running and self.log.collided_at is None and not self.driver.finished:
+            t = self.now()
+            self._send(np.asarray(self.driver(np.array([x, y, theta]), t), float))
+            fresh = time.monotonic() - self._filtered_at <= self.cmd_timeout
+            twist = self._filtered if fresh else np.zeros(2)
+            self.log.trace.append((t, x, y, v, theta, self._changed))
+            self.log.stopped += abs(v) < STOPPED_SPEED and abs(omega) < STOPPED_TURN and not self.driver.finished
+            self.world.step(float(twist[0]), float(twist[1]))
+            if self.world.collided:
+                self.log.collided_at = t
+            x, y, theta = self.world.pose
+            v, omega = self.world.velocity
+        self.odom_pub.publish(odometry_message(x, y, theta, v, "map", self.get_clock().now().to_msg()))
+
+    def _send(self, nominal: np.ndarray) -> None:
+        self.log.commands += 1
+        if self.direct:
+            self._filtered, self._filtered_at, self._changed = nominal, time.monotonic(), False
+            return
+        msg = TwistStamped()
+        msg.header.frame_id = "base_link"
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.twist.linear.x, msg.twist.angular.z = float(nominal[0]), float(nominal[1])
+        self._sent[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = (time.perf_counter(), nominal)
+        if len(self._sent) > 100:
+            self._sent.pop(next(iter(self._sent)))
+        self.cmd_pub.publish(msg)
+
+    def _on_cmd(self, msg: TwistStamped) -> None:
+        self._filtered = np.array([msg.twist.linear.x, msg.twist.angular.z])
+        self._filtered_at = time.monotonic()
+        sent = self._sent.pop((msg.header.stamp.sec, msg.header.stamp.nanosec), None)
+        if sent is None:  # the node's fail-closed timer: a stop that answers no command
+            return
+        self.log.latency_s.append(time.perf_counter() - sent[0])
+        self._changed = bool(np.abs(self._filtered - sent[1]).max() > 1e-6)
+        self.log.changed += self.running and self._changed
+
+    def _on_grid(self, msg: OccupancyGrid) -> None:
+        from hjrno_ros.ros.messages import occupancy_array
+
+        origin = (msg.info.origin.position.x, msg.info.origin.position.y)
+        self.log.grids.append((self.now(), origin, msg.info.resolution, occupancy_array(msg) >= 100))
+
+    def result(self) -> EpisodeResult:
+        """The episode as the lockstep runner reports it."""
+        log, driver = self.log, self.driver
+        stops = log.status.get("counts", {}).get("stops", log.stops_before) - log.stops_before
+        return EpisodeResult(log.collided_at is not None, log.collided_at, list(driver.reached),
+                             len(driver.episode.goals), len(log.trace), log.stopped, log.changed,
+                             0 if self.direct else stops, np.array(log.trace).reshape(-1, 6))
+
+
+def drive(domain: int, make_base: Callable[..., IrSimBase], seconds: float, ready: Callable[[BaseLog], bool],
+          timeout: float = 120.0) -> IrSimBase:
+    """Create the base on ``domain`` (``make_base(context=...)``), spin until ``ready(log)`` (the filter is up),
+    then drive for ``seconds`` of real time or until a collision or the last goal."""
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain)
+    base = make_base(context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(base)
+    try:
+        deadline = time.monotonic() + timeout
+        while not ready(base.log):
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"brt_node did not start filtering within {timeout:g} s: "
+                                   f"{base.log.status.get('reason', 'no status received')}")
+            executor.spin_once(timeout_sec=0.05)
+        base.log.stops_before = base.log.status.get("counts", {}).get("stops", 0)
+        base.running, base.t0 = True, time.monotonic()
+        end = time.monotonic() + seconds
+        while time.monotonic() < end and base.log.collided_at is None and not base.driver.finished:
+            executor.spin_once(timeout_sec=0.01)
+        base.running = False
+        return base
+    finally:
+        executor.shutdown(timeout_sec=2.0)
+        base.destroy_node()
+        rclpy.shutdown(context=context)
