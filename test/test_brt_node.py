@@ -718,6 +718,10 @@ def test_commands_beyond_the_limits_are_clipped(ros):
     out = driver.command(0.5, 100.0)
     bound = p.kappa_max * max(0.5, 0.5)
     assert out is not None and out.linear.x == 0.5 and out.angular.z == pytest.approx(bound)
+    # a command changed only by clipping is not "ok": its own state, WARN on /diagnostics
+    assert wait_for(lambda: driver.status.get("state") == "clipped", 2.0), driver.status
+    assert wait_for(lambda: driver.diagnostics is not None and driver.diagnostics.level == DiagnosticStatus.WARN
+                    and "clipped" in driver.diagnostics.message, 3.0), driver.diagnostics
     out = driver.command(0.5, 0.1, linear_y=1.0, angular_x=2.0)
     assert out is not None and (out.linear.y, out.angular.x, out.linear.x, out.angular.z) == (0.0, 0.0, 0.5, 0.1)
     assert wait_for(lambda: driver.status["counts"]["clipped"] >= clipped + 5, 2.0), driver.status["counts"]

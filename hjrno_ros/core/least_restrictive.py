@@ -65,17 +65,21 @@ def certificate(params: RobotParams, clearance: Clearance, table=None, epsilon: 
 
 def step(params: RobotParams, states: np.ndarray, twists: np.ndarray, dt: float,
          period: float | None = None) -> np.ndarray:
-    """The states ``(..., 4)`` after the base applies ``twists`` ``(..., 2)`` for ``dt`` without disturbance
-    (controls held, speed kept in [v_min, v_max], midpoint rule); the base turns a twist into controls over its
-    control ``period`` (default ``dt``)."""
-    control = twist_to_control(params, states, twists, period or dt)
+    """The states ``(..., 4)`` after the base follows ``twists`` ``(..., 2)`` for ``dt`` without disturbance: its speed
+    moves toward the command (within [v_min, v_max]) at up to a_max and holds it there, it turns as
+    :func:`~hjrno_ros.core.safety_filter.twist_to_control` says over its control ``period`` (default ``dt``).  The
+    distance covered is taken at the faster of the two speeds (a base may reach its new speed at once, as IR-SIM's
+    does, or keep its old one for most of the period): never less than the robot can travel toward an obstacle."""
+    period = period or dt
+    control = twist_to_control(params, states, twists, period)
     v = states[..., 2]
-    v1 = np.clip(v + control[..., 0] * dt, params.v_min, params.v_max)
-    v_mid = 0.5 * (v + v1)
-    theta1 = states[..., 3] + turn_gain(params, v_mid) * control[..., 1] * dt
+    target = np.clip(twists[..., 0], params.v_min, params.v_max)
+    v1 = v + np.clip(target - v, -params.a_max * dt, params.a_max * dt)
+    v_move = np.where(v * v1 >= 0, np.where(np.abs(v1) > np.abs(v), v1, v), 0.5 * (v + v1))
+    theta1 = states[..., 3] + turn_gain(params, 0.5 * (v + v1)) * control[..., 1] * dt
     theta_mid = 0.5 * (states[..., 3] + theta1)
-    x1 = states[..., 0] + v_mid * np.cos(theta_mid) * dt
-    y1 = states[..., 1] + v_mid * np.sin(theta_mid) * dt
+    x1 = states[..., 0] + v_move * np.cos(theta_mid) * dt
+    y1 = states[..., 1] + v_move * np.sin(theta_mid) * dt
     return np.stack([x1, y1, v1, (theta1 + np.pi) % (2 * np.pi) - np.pi], -1)
 
 
