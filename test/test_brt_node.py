@@ -690,7 +690,7 @@ def test_docs_parameter_table_is_current():
     assert markdown_table() in (ROOT / "docs" / "node.md").read_text()
 
 
-# ------------------------------------------------------------------ issue 40: the node's contract over DDS
+# ------------------------------------------------------------------ the node's contract over DDS
 
 
 def test_driving_off_the_map_edge_is_filtered(ros):

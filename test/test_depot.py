@@ -3,7 +3,7 @@
 ``hjrno bench depot`` (hjrno_ros.tools.depot_check) at CI size: 20 episodes of 6 s against one brt_node
 process (bundled model), the four drivers in turn (straight at an obstacle, straight at the map's edge,
 goal-seeking, goal-seeking to a goal beyond the map's edge), starts at rest ≥ 0.5 m from obstacles.
-Targets (issue 43): 0 collisions and 0 exits from the map.  The ≥ 200-episode run is committed in
+Targets: 0 collisions and 0 exits from the map.  The ≥ 200-episode run is committed in
 benchmarks/results/depot.{md,json}.
 """
 

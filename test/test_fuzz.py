@@ -1,4 +1,4 @@
-"""Fuzzing brt_node's contract (issue 40): never pass what the model cannot vouch for.
+"""Fuzzing brt_node's contract: never pass what the model cannot vouch for.
 
 Two parts:
 
@@ -234,7 +234,7 @@ def test_sample_raster_reads_the_block_it_needs_and_beyond_the_map_is_outside():
 
 
 def test_fuzz_finding_d_sample_raster_far_points_read_the_wrong_cells():
-    """FUZZ FINDING D (issue 40; fixed): a point more than ~9.2e18 cells from the raster (|x| ≳
+    """FUZZ FINDING D (fixed): a point more than ~9.2e18 cells from the raster (|x| ≳
     9.2e18·resolution m: a map origin or an odometry position of 1e20 m, both accepted as finite) overflows the
     int64 casts in sample_raster (block bounds; scipy's coordinates): (1) that point samples the opposite edge, not
     the nearest one; (2) every other point of the same call samples a wrong cell, even with ``outside``; and ±inf
@@ -416,7 +416,7 @@ def test_filter_batch_is_finite_within_the_limits_and_rows_are_independent():
 
 
 def test_fuzz_finding_a_qp_with_a_speed_dependent_disturbance_raises():
-    """FUZZ FINDING A (issue 40; fixed): ``qp`` mode with a car whose disturbance grows with speed
+    """FUZZ FINDING A (fixed): ``qp`` mode with a car whose disturbance grows with speed
     (tracking_error > 0, CarParams.product()) raises ValueError from minimal_change (it reads params.d_max); the
     node catches it and publishes a stop for every command: ``qp`` is unusable with such a model card."""
     p = CarParams.product()
@@ -427,7 +427,7 @@ def test_fuzz_finding_a_qp_with_a_speed_dependent_disturbance_raises():
 
 
 def test_fuzz_finding_b_a_huge_speed_gives_an_infinite_turn_rate():
-    """FUZZ FINDING B (issue 40; fixed): at a finite but huge speed (|v| ≳ 1e300) the angular bound
+    """FUZZ FINDING B (fixed): at a finite but huge speed (|v| ≳ 1e300) the angular bound
     κ_max·|v| overflows to inf, and the safe control's turn rate v·κ is inf: filter_command returns angular ±inf
     (switch/blend/qp).  The node clips v to the model's range first, so brt_node does not reach it; other
     callers (studies) can."""
@@ -439,7 +439,7 @@ def test_fuzz_finding_b_a_huge_speed_gives_an_infinite_turn_rate():
 
 
 def test_fuzz_finding_c_qp_at_a_subnormal_speed_returns_nan():
-    """FUZZ FINDING C (issue 40; fixed; it was reachable in brt_node): ``qp`` mode, the paper car (the bundled
+    """FUZZ FINDING C (fixed; it was reachable in brt_node): ``qp`` mode, the paper car (the bundled
     model's), V ≤ ε, ∂V/∂v < 0 and a subnormal speed (odometry twist.linear.x = 1e-310: finite, inside [v_min,
     v_max], so the node passes it on).  Then g = (0, ∂V/∂θ·v·κ_max) has one exact zero (the speed limit) and one
     subnormal entry; the kink (sign(g) − z0)/g overflows to inf, inf·0 = NaN, and filter_command returns

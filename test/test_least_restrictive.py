@@ -139,3 +139,22 @@ def test_careless_drivers_never_collide(cert, driver):
         assert changed == 0
     if driver == "goal":
         assert np.mean(np.linalg.norm(x[:, :2] - start[:, :2], axis=1)) > 1.0
+
+
+def test_step_reaches_the_command_without_overshoot_and_never_underestimates_the_distance():
+    """Over a long delay the speed stops at the command (a base holds its setpoint); the distance is taken at the
+    faster of the old and new speed (a base may jump to its new speed at once, as IR-SIM's does)."""
+    s = np.array([[0.0, 0.0, 0.062, 0.0]])
+    later = step(ROBOT, s, np.array([[0.0, 0.0]]), 0.1, period=0.05)
+    assert later[0, 2] == 0.0 and later[0, 0] == pytest.approx(0.062 * 0.1)
+    faster = step(ROBOT, np.array([[0.0, 0.0, 0.0, 0.0]]), np.array([[1.0, 0.0]]), 0.05)
+    assert faster[0, 2] == pytest.approx(0.05) and faster[0, 0] == pytest.approx(0.05 * 0.05)
+
+
+def test_a_command_is_judged_where_the_robot_will_be_when_it_acts(cert):
+    """Heading for the wall at speed: judged from the state now a forward command passes, judged from the state
+    after 0.2 s more of the same command (odometry age, the way to the wheels) it is slowed."""
+    state = np.array([1.2, 0.0, 1.0, 0.0])
+    now = decide(ROBOT, SETTINGS, cert, state, 1.0, 0.0)
+    later = decide(ROBOT, SETTINGS, cert, state, 1.0, 0.0, previous=(1.0, 0.0), delay=0.2)
+    assert later.intervened and later.linear < now.linear

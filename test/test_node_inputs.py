@@ -1,4 +1,4 @@
-"""brt_node's input parsing and limits without DDS (issue 40): quaternions, map origins, the map edge, the
+"""brt_node's input parsing and limits without DDS: quaternions, map origins, the map edge, the
 command limits, raster sampling independent of the map's size, status states."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""brt_node as a Nav2 node over real DDS (issue 43): the lifecycle through its services, a costmap as the map,
+"""brt_node as a Nav2 node over real DDS: the lifecycle through its services, a costmap as the map,
 command type mismatches found in the ROS graph."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The DDS fuzzer of issue 40: drives a running brt_node with a random mix of valid and hostile inputs and checks
+"""The DDS fuzzer: drives a running brt_node with a random mix of valid and hostile inputs and checks
 every command it publishes.
 
 :func:`fuzz_drive` publishes, on a private ROS domain, maps (200 × 200 cells at 0.1 m, origin (−10, −10), with

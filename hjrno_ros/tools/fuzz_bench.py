@@ -1,4 +1,4 @@
-"""``hjrno bench fuzz``: brt_node under a long DDS fuzz (issue 40), and what map size costs.
+"""``hjrno bench fuzz``: brt_node under a long DDS fuzz, and what map size costs.
 
 The node runs in its own process (``python -m hjrno_ros.ros.main``, the bundled model unless one is given,
 ``pose_topic:=amcl_pose``) on a private ROS domain; :func:`hjrno_ros.ros.fuzz_driver.fuzz_drive` (the driver of

@@ -2,7 +2,7 @@
 
 The operator predicts V on a robot-centred window in milliseconds, but indoors its turn (the sign of
 ∂V/∂θ near V = 0) disagrees with the truth's on ~12 % of states, and that turn is what makes its filter
-collide (issue 6).  ``solve(..., initial=W)`` from the operator's prediction W corrects it in a fraction
+collide.  ``solve(..., initial=W)`` from the operator's prediction W corrects it in a fraction
 of a cold solve's time (docs/results.md, warm-start study, 16 indoor rooms: sign agreement 0.875 → 0.919 after
 16 simulated s, 8.7 s of wall time per 10 m room here against ~75 s cold; 0 and 0 collisions in 2002
 closed-loop episodes against the operator's 6 and 13).  For a map that does not change, that is worth
