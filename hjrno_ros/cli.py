@@ -2,13 +2,10 @@
 
     hjrno solve --scenario disk|room|indoor|air3d [--robot paper|product|diff_drive] [--grid 40,40,12,20] [--out DIR]
     hjrno generate --experiment NAME [--config FILE] [--out DIR] [--shard K/N] [--workers W]
-    hjrno merge --out DIR [SHARD_DIR ...]
-    hjrno show --dataset FILE
-    hjrno train | ensemble | evaluate | calibrate | simulate | demo   (see --help of each)
+    hjrno merge | show | train | ensemble | evaluate | calibrate | simulate | demo   (see --help of each)
     hjrno bench solver|dataset|node|fuzz|depot|nav [--out DIR]
 
-Results tables (evaluate, simulate, bench) go to ``out/bench`` unless ``--out`` says otherwise;
-``make bench`` writes the committed ones under ``benchmarks/results`` explicitly.
+Results tables (evaluate, simulate, bench) go to ``out/bench`` unless ``--out`` says otherwise.
 """
 
 from __future__ import annotations
@@ -293,9 +290,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def cmd_bench(args: argparse.Namespace) -> int:
     from hjrno_ros.tools import benchmarks
 
-    select = {k: getattr(args, k) for k in ("robots", "maps", "drivers", "filters")}
     return benchmarks.dispatch(args.what, Path(args.out), quick=args.quick, only=args.only, model=args.model,
-                               episodes=args.episodes, seconds=args.seconds, select=select)
+                               episodes=args.episodes, seconds=args.seconds,
+                               select={k: getattr(args, k) for k in ("robots", "maps", "drivers", "filters")})
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -480,18 +477,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("what", choices=["solver", "dataset", "node", "fuzz", "depot", "nav"])
     p.add_argument("--out", default="out/bench", help="results folder (default: out/bench)")
     p.add_argument("--quick", action="store_true", help="smallest case only (smoke run)")
-    p.add_argument("--only", default=None, help="dataset bench: comma-separated families; solver bench: problems "
-                   "(others keep old rows)")
-    p.add_argument("--model", default=None, help="node and depot benches: model stem (default: the bundled model)")
-    p.add_argument("--seconds", type=float, default=None, help="fuzz bench: seconds of fuzzing (default: 180); nav "
-                   "bench: every episode's length (default: 90 s TurtleBot3, 40 s Jackal)")
-    p.add_argument("--episodes", type=int, default=None,
-                   help="depot bench: episodes on Nav2's depot map (default: 200; --seconds each, default: 12); nav "
-                   "bench: episodes per map, robot and driver (default: 3)")
-    for name, choices in (("robots", "turtlebot3,jackal"), ("maps", "plan1000001,plan1000002,depot"),
-                          ("drivers", "follower,careless"),
-                          ("filters", "none,stop_zone,ground_truth,learned,brt_node")):
-        p.add_argument(f"--{name}", default=None, help=f"nav bench: comma-separated {name} (default: {choices})")
+    p.add_argument("--only", default=None, help="dataset bench: families; solver bench: problems (comma-separated)")
+    p.add_argument("--model", default=None, help="node, depot and nav benches: model stem (default: models/default)")
+    p.add_argument("--seconds", type=float, default=None, help="fuzz: seconds (180); depot, nav: per episode")
+    p.add_argument("--episodes", type=int, default=None, help="depot: episodes (200); nav: per case (3)")
+    for name in ("robots", "maps", "drivers", "filters"):  # nav_bench.ROBOTS, MAPS, DRIVERS, FILTERS
+        p.add_argument(f"--{name}", default=None, help=f"nav bench: comma-separated {name} (default: all)")
     p.set_defaults(func=cmd_bench)
     return parser
 

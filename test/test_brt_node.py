@@ -330,7 +330,9 @@ def ground_truth_control(node: BrtNode, state: np.ndarray) -> tuple[np.ndarray, 
 
 
 def test_driving_into_wall_is_overridden(ros):
-    """1 m/s, 0.6 m before a wall, heading 0.3 rad off its normal: the filter takes over.
+    """1 m/s, 0.6 m before a wall, heading 0.3 rad off its normal: the filter takes over; in switch mode with the
+    optimal control (bang-bang curvature), in the default mode with the closest admissible command, which also
+    turns away and never adds speed.
 
     Ground truth here (a converged solve): V ≈ 0, ∂V/∂θ > 0 (turn left, away from the wall, at full
     curvature) and ∂V/∂v ≥ 0 (a stopped car drifts into the wall under the disturbance, so braking
@@ -344,6 +346,10 @@ def test_driving_into_wall_is_overridden(ros):
     if not bundled:  # the tiny test model's V is not accurate; V <= V0 = 0.6 m makes 0.7 m a sure trigger
         assert driver.set_param("epsilon", 0.7)[0]
     try:
+        out = driver.command(1.0, 0.0)
+        assert out is not None and (out.linear.x, out.angular.z) != (1.0, 0.0)
+        assert out.linear.x <= 1.0 and (out.angular.z > 0 or not bundled), out
+        assert driver.set_param("filter_mode", "switch")[0]
         assert wait_for(lambda: driver.status["value"] is not None and driver.status["value"] <= 0.6 + 1e-6, 5.0)
         out = driver.command(1.0, 0.0)
         assert out is not None and (out.linear.x, out.angular.z) != (1.0, 0.0)
@@ -361,6 +367,7 @@ def test_driving_into_wall_is_overridden(ros):
             if abs(grad[2]) > 2e-2:  # the speed gradient is decisive: same feasible acceleration sign
                 assert np.sign(out.linear.x - v) == np.sign(u[0]), (out, u, grad)
     finally:
+        assert driver.set_param("filter_mode", "least_restrictive")[0]
         assert driver.set_param("epsilon", eps)[0]
 
 
@@ -577,6 +584,26 @@ def test_heading_across_pi_reads_the_stencil_not_its_clamped_edge():
     assert not table.inside(state.vector(vf.params.v_min, vf.params.v_max), axes=(3,))
 
 
+def test_slice_stencil_holds_every_speed_and_heading_reached_before_the_next_table():
+    """A slice model's stencil spans v ± reach (shifted inside [v_min, v_max]) and θ ± reach, levels at most a
+    card grid step apart, and agrees with the plain 2 × 2 stencil where both hold the state."""
+    from hjrno_ros.learning.value_function import LearnedValueFunction
+
+    vf = LearnedValueFunction(ROOT / "models" / "paper_cnn", device="cpu")
+    dv, dtheta = vf.grid.spacings[2], vf.grid.spacings[3]
+    xy = vf.window_points((0.0, 0.0))
+    v0 = (np.abs(xy[..., 0] - 2.0) - 0.3).astype(np.float32)
+    for v, lo, hi in ((0.5, 0.25, 0.75), (0.95, 0.5, 1.0), (0.0, 0.0, 0.5)):
+        table = vf.local_table(v0, (0.0, 0.0), v, 0.3, reach=(0.25, 0.25))
+        g = table.grid
+        assert (g.lo[2], g.hi[2]) == pytest.approx((lo, hi)) and (g.lo[3], g.hi[3]) == pytest.approx((0.05, 0.55))
+        assert np.all(np.asarray(g.spacings[2:]) <= np.array([dv, dtheta]) + 1e-9)
+    plain = vf.local_table(v0, (0.0, 0.0), 0.5 + dv / 2, 0.3)  # speeds 0.5, 0.625
+    wide = vf.local_table(v0, (0.0, 0.0), 0.5, 0.3, reach=(0.25, 0.0))  # speeds 0.25 ... 0.75, the same headings
+    state = np.array([0.4, 0.1, 0.5, plain.grid.lo[3]])  # a node of both tables
+    assert wide.value(state) == pytest.approx(plain.value(state), abs=1e-4)
+
+
 def test_config_yaml_lists_every_parameter_with_its_default():
     import yaml
 
@@ -715,6 +742,7 @@ def test_commands_beyond_the_limits_are_clipped(ros):
                             ((-1.0, 0.0), (p.v_min, 0.0))):
         out = driver.command(*nominal)
         assert out is not None and (out.linear.x, out.angular.z) == expect, (nominal, out)
+    assert driver.command(0.5, 0.0) is not None  # the base keeps 0.5 m/s until the next command acts
     out = driver.command(0.5, 100.0)
     bound = p.kappa_max * max(0.5, 0.5)
     assert out is not None and out.linear.x == 0.5 and out.angular.z == pytest.approx(bound)

@@ -477,7 +477,14 @@ def _map_kinds() -> tuple[str, ...]:
     return tuple(getattr(parameters, "MAP_KINDS", ()))
 
 
-CHOICES = {"filter_mode": lambda: safety_filter.MODES, "map_kind": _map_kinds}  # string parameters with a list
+def _robot_models() -> tuple[str, ...]:
+    from hjrno_ros.ros import parameters
+
+    return tuple(parameters.ROBOT_MODEL_NAMES)
+
+
+CHOICES = {"filter_mode": lambda: safety_filter.MODES, "map_kind": _map_kinds,  # string parameters with a list
+           "robot_model": _robot_models}
 
 
 def parameter_value(rng: np.random.Generator, name: str, spec: Any) -> Any:
@@ -521,7 +528,7 @@ def parameter_expected(name: str, spec: Any, value: Any, startup: bool) -> bool:
             return True
         if not math.isfinite(value):
             return False
-        if name in ("a_max", "kappa_max", "v_max"):  # the robot's limits: -1 = the card's, else > 0
+        if name in ("a_max", "omega_max", "kappa_max", "v_max"):  # the robot's limits: -1 = the card's, else > 0
             return value == -1.0 or value > 0
         if name == "tracking_error":
             return value == -1.0 or value >= 0
@@ -657,7 +664,7 @@ def test_dds_fuzz_node_survives_and_never_publishes_beyond_the_limits():
 
     domain = 1 + (os.getpid() + 60) % 100
     model = ROOT / "models" / "paper_cnn"
-    with brt_node_process(domain, {"pose_topic": "amcl_pose"}, model) as (proc, log_tail):
+    with brt_node_process(domain, {"pose_topic": "amcl_pose", "robot_model": "car"}, model) as (proc, log_tail):
         result = fuzz_drive(domain, DDS_SECONDS, seed=40, alive=lambda: proc.poll() is None)
         alive = proc.poll() is None
         proc.send_signal(signal.SIGINT)

@@ -57,8 +57,10 @@ class ScaledValueFunction:
         s = self.scaling.length
         return self.vf.window_points((center[0] / s, center[1] / s), shape) * s
 
-    def local_table(self, v0: np.ndarray, center: tuple[float, float], v: float, theta: float) -> Any:
+    def local_table(self, v0: np.ndarray, center: tuple[float, float], v: float, theta: float,
+                    reach: tuple[float, float] = (0.0, 0.0)) -> Any:
+        """The table around the state (``reach``: m/s and rad the robot may move from v and θ before the next)."""
         s, speed = self.scaling.length, self.scaling.speed
         grid, values = self.vf.local_values(np.asarray(v0) / s, (center[0] / s, center[1] / s), v / speed, theta,
-                                            self.model_params)
+                                            self.model_params, (reach[0] / speed, reach[1]))
         return value_table(self.scaling.grid_to_robot(grid), values * s)

@@ -8,14 +8,16 @@ headings stay map-frame headings.  V0 is the signed distance sampled at the mode
 A *table* model predicts every (v, θ) node of the card's grid in one forward pass: the node then holds the
 whole table of the window, and every speed and heading the robot can reach is in it.  For a robot that rests
 safely (d₀ = 0) the rest slice is not predicted but exact, V(x, y, 0, θ) = V0(x, y) (docs/design.md, "Robot
-models").  A *slice* model predicts the 2 × 2 (v, θ) slices half a grid step either side of the robot's
-speed and heading (one grid cell centred on the state, as the solver's grid interpolates): 4 slices, not the 9
-of a 3 × 3 stencil.  Either way a :class:`ValueTable` gives V and ∇V (x, y, v, θ) at any state it covers.
+models").  A *slice* model predicts a (v, θ) stencil of slices around the robot's speed and heading: at least
+one grid cell centred on the state (2 × 2 slices), widened to what the robot reaches before the next table
+(:meth:`LearnedValueFunction.local_values`).  Either way a :class:`ValueTable` gives V and ∇V (x, y, v, θ)
+at any state it covers.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import torch
@@ -112,36 +114,50 @@ class LearnedValueFunction:
         return np.array([[param_value(values, name) for name in names]], np.float32)
 
     def local_values(self, v0: np.ndarray, center: tuple[float, float], v: float, theta: float,
-                     robot: RobotParams | None = None) -> tuple[GridSpec, np.ndarray]:
+                     robot: RobotParams | None = None, reach: tuple[float, float] = (0.0, 0.0)
+                     ) -> tuple[GridSpec, np.ndarray]:
         """(grid, V on it) over the window centred at ``center``: a table model's whole (v, θ) table, or a slice
-        model's 2 × 2 (v, θ) stencil (v ± dv/2, θ ± dθ/2, dv and dθ the card grid's steps; v kept within
-        [v_min, v_max]) around the state, mirrored for a reversing state of a forward-only card
-        (V(x, y, −v, θ) = V(x, y, v, θ + π); core/similarity.py, Coverage).  ``robot``: a covered robot in the
-        card's units (a conditioned model's channels)."""
+        model's (v, θ) stencil around the state: speeds v ± max(dv/2, reach[0]) (kept within [v_min, v_max]) and
+        headings θ ± max(dθ/2, reach[1]), dv and dθ the card grid's steps at most between levels, so the table
+        holds every speed and heading the robot reaches before the next one; mirrored for a reversing state of a
+        forward-only card (V(x, y, −v, θ) = V(x, y, v, θ + π); core/similarity.py, Coverage).  ``robot``: a
+        covered robot in the card's units (a conditioned model's channels)."""
         g = self.grid
         if self.whole_table:
             grid = GridSpec((g.lo[0] + center[0], g.lo[1] + center[1], *g.lo[2:]),
                             (g.hi[0] + center[0], g.hi[1] + center[1], *g.hi[2:]), g.shape, g.periodic)
             return grid, self.table(v0, robot)
         mirror = v < 0 and self.params.v_min >= 0
-        dv, dtheta = g.spacings[2], g.spacings[3]
-        v_mid = float(np.clip(-v if mirror else v, self.params.v_min + dv / 2, self.params.v_max - dv / 2))
-        speeds = np.array([v_mid - dv / 2, v_mid + dv / 2])
-        headings = np.array([theta - dtheta / 2, theta + dtheta / 2])
+        speeds = _levels(-v if mirror else v, g.spacings[2], reach[0], (self.params.v_min, self.params.v_max))
+        headings = _levels(theta, g.spacings[3], reach[1])
         vv, tt = np.meshgrid(speeds, headings + (np.pi if mirror else 0.0), indexing="ij")
         params = self.condition(robot)
-        slices = self.predict(v0, vv.ravel(), tt.ravel(), None if params is None else np.repeat(params, 4, 0))
+        slices = self.predict(v0, vv.ravel(), tt.ravel(), None if params is None else np.repeat(params, vv.size, 0))
         nx, ny = v0.shape
-        table = np.moveaxis(slices.reshape(2, 2, nx, ny), (0, 1), (2, 3))
+        table = np.moveaxis(slices.reshape(*vv.shape, nx, ny), (0, 1), (2, 3))
         if mirror:
             speeds, table = -speeds[::-1], table[:, :, ::-1]
         grid = GridSpec((g.lo[0] + center[0], g.lo[1] + center[1], speeds[0], headings[0]),
-                        (g.hi[0] + center[0], g.hi[1] + center[1], speeds[-1], headings[-1]), (nx, ny, 2, 2))
+                        (g.hi[0] + center[0], g.hi[1] + center[1], speeds[-1], headings[-1]), (nx, ny, *vv.shape))
         return grid, table
 
     def local_table(self, v0: np.ndarray, center: tuple[float, float], v: float, theta: float,
-                    robot: RobotParams | None = None) -> ValueTable | ReversingTable:
+                    robot: RobotParams | None = None, reach: tuple[float, float] = (0.0, 0.0)
+                    ) -> ValueTable | ReversingTable:
         """:meth:`local_values` as a table that answers V and ∇V at any state it covers (a whole forward table also
         at reversing states, by symmetry)."""
-        return value_table(*self.local_values(v0, center, v, theta, robot))
+        return value_table(*self.local_values(v0, center, v, theta, robot, reach))
 
+
+def _levels(centre: float, step: float, reach: float, bounds: tuple[float, float] | None = None) -> np.ndarray:
+    """Evenly spaced levels, at most ``step`` apart, over centre ± max(step/2, reach), shifted (not cut) to lie
+    within ``bounds`` and cut to them only where the span is wider than the bounds."""
+    half = max(step / 2, reach)
+    lo, hi = centre - half, centre + half
+    if bounds is not None:
+        if hi - lo >= bounds[1] - bounds[0]:
+            lo, hi = bounds
+        else:
+            shift = max(bounds[0] - lo, 0.0) - max(hi - bounds[1], 0.0)
+            lo, hi = lo + shift, hi + shift
+    return np.linspace(lo, hi, max(2, math.ceil((hi - lo) / step - 1e-9) + 1))

@@ -62,7 +62,7 @@ class SolverGrid:
         y = np.linspace(self.grid.lo[1], self.grid.hi[1], ny) + center[1]
         return np.stack(np.meshgrid(x, y, indexing="ij"), -1)
 
-    def local_table(self, *args: Any) -> None:
+    def local_table(self, *args: Any, **kwargs: Any) -> None:
         return None
 
 

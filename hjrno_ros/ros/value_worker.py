@@ -1,9 +1,9 @@
 """The value worker: the node's own thread that keeps a value table around the robot.
 
-At ``inference_rate`` it installs new maps (signed distance), and when the robot has left the
-window's centre, the table is half ``value_timeout`` old or (a slice model's 2 × 2 (v, θ) stencil) the robot
-left its speed or heading cell, it predicts V∞ on a window centred on the robot (a table model: every speed and
-heading at once) and swaps the table in atomically.
+At ``inference_rate`` it installs new maps (signed distance), and when the robot has left the window's centre,
+the table is half ``value_timeout`` old or (a slice model's (v, θ) stencil, which spans what the robot reaches in
+``STENCIL_HORIZON_S``) the robot is half way to its edge, it predicts V∞ on a window centred on the robot (a table
+model: every speed and heading at once) and swaps the table in atomically.
 With background refinement, the refined table of the current map replaces the operator's while the
 robot is inside it.  It runs at a lower scheduling priority, so a busy CPU serves commands first.
 ``get`` is the value input of the fail-closed check.
@@ -28,11 +28,13 @@ from hjrno_ros.ros.parameters import obstacle_threshold
 from hjrno_ros.ros.refinement import Refinement
 
 INFERENCE_NICE = 10  # the worker thread's nice value above the node's
+STENCIL_HORIZON_S = 0.25  # s: a slice model's stencil holds what the robot reaches in this time (state age,
+# command latency, one control period and the next inference, with the recompute at half of it)
 
 
 @dataclasses.dataclass(frozen=True)
 class ValueData:
-    table: Any  # ValueTable or ReversingTable: the window's whole table, its 2 × 2 (v, θ) stencil, or the refined map
+    table: Any  # ValueTable or ReversingTable: the window's whole table, its (v, θ) stencil, or the refined map
     center: tuple[float, float]
     v: float
     theta: float
@@ -73,7 +75,10 @@ class ValueWorker:
         self.value: ValueData | None = None
         self.error = ""  # the last inference failure; "" after a success
         self.inferences = self.errors = 0
-        self._dv, self._dtheta = float(vf.grid.spacings[2]), float(vf.grid.spacings[3])
+        self._dv = float(vf.grid.spacings[2])
+        p = vf.params  # the speed and heading a slice model's stencil reaches either side of the state
+        self.reach = (max(0.5 * self._dv, p.a_max * STENCIL_HORIZON_S),
+                      max(0.5 * float(vf.grid.spacings[3]), p.turn_rate_max * STENCIL_HORIZON_S))
         wx, wy = vf.window
         nx, ny = vf.shape
         h = min(wx / (nx - 1), wy / (ny - 1))  # square value-grid cells, at least the model's resolution
@@ -177,7 +182,8 @@ class ValueWorker:
         center = (state.x, state.y)
         v = min(max(state.v, p.v_min), p.v_max)
         if refined is None:
-            table = self.vf.local_table(self.v0(m, self.vf.window_points(center)), center, v, state.theta)
+            table = self.vf.local_table(self.v0(m, self.vf.window_points(center)), center, v, state.theta,
+                                        reach=self.reach)
             if table is None:  # a solver card: no operator, wait for the solver's table
                 return
         else:
@@ -205,9 +211,9 @@ class ValueWorker:
                     or (val.table is not refined.table if refined else val.source != "operator")
                     or math.hypot(state.x - val.center[0], state.y - val.center[1]) > self.recenter_distance(cfg)
                     or now - val.computed > 0.5 * cfg["value_timeout"]
-                    or not (self.whole_table or refined) and (  # the state left a stencil's cell
-                        abs(state.v - val.v) > 0.5 * self._dv
-                        or abs(float(wrap_angle(state.theta - val.theta))) > 0.5 * self._dtheta))
+                    or not (self.whole_table or refined) and (  # the state is half way to a stencil's edge
+                        abs(state.v - val.v) > 0.5 * self.reach[0]
+                        or abs(float(wrap_angle(state.theta - val.theta))) > 0.5 * self.reach[1]))
 
     @property
     def whole_table(self) -> bool:

@@ -49,14 +49,14 @@ SCENES = (
           "1.6 m dead-end corridor at 0.3 m/s: no collision, |v| never above the nominal's"),
     Scene("reverse", (1.2, 1.5, -0.3, 0.0), (-0.3, 0.0), 7.0, "reversing at 0.3 m/s toward a wall behind: braked"),
     Scene("rest_reverse", (0.4, 2.0, 0.0, 0.0), (-0.3, 0.0), 3.0,
-          "at rest 0.2 m before a wall behind (inside the margin), nominal reverse: stays at rest"),
+          "at rest 0.2 m before a wall behind, nominal reverse: creeps back, slowing, at rest short of the wall"),
     Scene("spin", (5.5, 1.0, 0.0, 0.0), (0.0, 1.0), 3.0, "spin in place 0.5 m from a wall: no motion added"),
     Scene("inside_wall", (6.1, 2.0, 0.0, 0.0), (0.3, 0.5), 2.0, "inside a wall: never more speed than the nominal"),
 )
 DIFF_DRIVE_SCENES = (
     *(s for s in SCENES if s.name not in ("spin", "rest_reverse")),
     Scene("rest_reverse", (0.3, 2.0, 0.0, 0.0), (-0.3, 0.0), 3.0,
-          "at rest 0.1 m before a wall behind (inside the margin), nominal reverse: stays at rest"),
+          "at rest 0.1 m before a wall behind, nominal reverse: creeps back, slowing, at rest short of the wall"),
     Scene("spin_in_place", (5.5, 1.0, 0.0, 0.0), (0.0, 1.0), 3.0,
           "spin in place 0.5 m from a wall: it turns (> 2 rad), no x-y motion"),
     Scene("escape_back", (5.9, 1.5, 0.0, 0.0), (-0.3, 0.0), 4.0,
@@ -92,13 +92,13 @@ def judge(scene: Scene, states: np.ndarray, outputs: np.ndarray) -> list[str]:
     speed = abs(scene.nominal[0])
     if len(outputs) and np.abs(outputs[:, 0]).max() > max(speed, abs(scene.start[2])) + 1e-9:
         problems.append(f"output speed {np.abs(outputs[:, 0]).max():.3f} above the nominal's {speed}")
-    if scene.name in ("rest_stop", "spin", "rest_reverse"):
+    if scene.name in ("rest_stop", "spin"):
         moved = np.linalg.norm(states[:, :2] - states[0, :2], axis=-1).max()
         if moved > 1e-3 or np.abs(states[:, 2]).max() > 1e-6:
             problems.append(f"moved {moved:.4f} m from rest")
         if len(outputs) and np.abs(outputs[:, 0]).max() > 0:
             problems.append("a non-zero speed was commanded at rest")
-    if scene.name in ("rest_forward", "reverse", "dead_end") and abs(states[-1, 2]) > 0.05:
+    if scene.name in ("rest_forward", "reverse", "dead_end", "rest_reverse") and abs(states[-1, 2]) > 0.05:
         problems.append(f"still moving at {states[-1, 2]:.3f} m/s at the end")
     if scene.name in ("spin_in_place", "escape_turn"):
         moved = np.linalg.norm(states[:, :2] - states[0, :2], axis=-1).max()

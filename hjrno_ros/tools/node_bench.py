@@ -9,7 +9,8 @@ second.  Measured:
 
 * command → filtered command latency (matched by the stamp the node copies through), p50/p95/p99;
 * map → value grid latency (matched by ``info.map_load_time`` = the map's stamp): DDS transfer of
-  the map, validation, signed distance, V0 sampling, inference over the 2 × 2 (v, θ) stencil, publishing;
+  the map, validation, signed distance, V0 sampling, inference (a table model: the whole (v, θ) table of the
+  window; a slice model: its (v, θ) stencil), publishing;
 * start-up: spawn → first status (model loaded, interfaces up) and spawn → filtering (status ok: map,
   odometry and the first value table), and the node's RSS once it filters, before the load (idle RSS);
 * the node's CPU share (CPU seconds / wall seconds over the measured window; 1.0 = one core) and
