@@ -88,12 +88,18 @@ def required(settings: FilterSettings, w: np.ndarray) -> np.ndarray:
     return np.where(w > 0, w * math.exp(-settings.decay_rate * settings.dt), w)
 
 
+def _after(params: RobotParams, settings: FilterSettings, states: np.ndarray,
+           twists: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(the states after each twist ``(n, k, 2)`` from ``states`` ``(n, 4)``, the disturbance's reach over dt)."""
+    s = np.broadcast_to(states[:, None], (*twists.shape[:2], 4))
+    nxt = step(params, s, twists, settings.dt)
+    return nxt, disturbance_bound(params, 0.5 * (s[..., 2] + nxt[..., 2])) * settings.dt
+
+
 def _next_w(params: RobotParams, settings: FilterSettings, cert: Certificate, states: np.ndarray,
             twists: np.ndarray) -> np.ndarray:
     """W after each twist ``(n, k, 2)`` from ``states`` ``(n, 4)``, less the disturbance's reach over dt."""
-    s = np.broadcast_to(states[:, None], (*twists.shape[:2], 4))
-    nxt = step(params, s, twists, settings.dt)
-    drift = disturbance_bound(params, 0.5 * (s[..., 2] + nxt[..., 2])) * settings.dt
+    nxt, drift = _after(params, settings, states, twists)
     return cert(nxt) - drift
 
 
@@ -137,28 +143,39 @@ def filter_least_restrictive(params: RobotParams, settings: FilterSettings, cert
     """Commands ``(n, 2)``, changed ``(n,)`` and W at the states ``(n,)`` for nominal twists ``(n, 2)`` (clipped to
     the limits first; a change by clipping alone does not count as changed).  With ``delay`` > 0 the commands are
     judged from the states :func:`ahead` (``previous``: the twists the base executes until then)."""
-    states, nominal = np.asarray(states, float), np.asarray(nominal, float)
-    w_here = cert(states)
-    states, lag = ahead(params, settings, states, previous, delay)
+    here, nominal = np.asarray(states, float), np.asarray(nominal, float)
+    states, lag = ahead(params, settings, here, previous, delay)
     nominal = clip_to_limits(params, states, nominal, settings.dt)
-    w_now = cert(states) - lag
-    need = required(settings, w_now)
-    tries = np.concatenate([nominal[:, None], _grid(params, states, nominal, settings.dt)], 1)
+    nxt, drift = _after(params, settings, states, nominal[:, None])
+    w_here, w_now, w_next = np.split(cert(np.concatenate([here, states, nxt[:, 0]])), 3)  # one lookup, not three
+    need = required(settings, w_now - lag)
+    changed = w_next - drift[:, 0] - lag < need
+    out = nominal.copy()
+    if changed.any():  # only the commands the nominal fails are searched (most pass: a cheap common case)
+        out[changed] = _closest_admissible(params, settings, cert, states[changed], nominal[changed],
+                                           lag[changed], need[changed])
+    return out, changed, w_here
+
+
+def _closest_admissible(params: RobotParams, settings: FilterSettings, cert: Certificate, states: np.ndarray,
+                        nominal: np.ndarray, lag: np.ndarray, need: np.ndarray) -> np.ndarray:
+    """For inadmissible nominal commands: the admissible command nearest each on the grid, moved along the
+    segment toward its nominal as far as stays admissible; where none is admissible, the highest W."""
+    tries = _grid(params, states, nominal, settings.dt)
     w = _next_w(params, settings, cert, states, tries) - lag[:, None]
     ok = w >= need[:, None]
-    changed = ~ok[:, 0]
     distance = _distance(params, tries, nominal[:, None])
     safest = w >= w.max(1, keepdims=True) - 1e-9  # none admissible: the highest W, nearest the nominal among ties
     best = np.where(ok.any(1), np.where(ok, distance, np.inf).argmin(1), np.where(safest, distance, np.inf).argmin(1))
     out = tries[np.arange(len(states)), best]
-    refine = changed & ok.any(1)
+    refine = ok.any(1)
     if refine.any():  # the admissible point nearest the nominal on the segment nominal -> best
         t = np.linspace(0.0, 1.0, SEGMENT_POINTS + 1)[1:]
         seg = nominal[refine, None] + t[:, None] * (out[refine] - nominal[refine])[:, None]
         seg_ok = _next_w(params, settings, cert, states[refine], seg) - lag[refine, None] >= need[refine, None]
         first = seg_ok.argmax(1)  # t = 1 (the best grid command) is admissible
         out[refine] = seg[np.arange(refine.sum()), first]
-    return out, changed, w_here
+    return out
 
 
 def decide(params: RobotParams, settings: FilterSettings, cert: Certificate, state: np.ndarray, linear: float,
