@@ -585,19 +585,19 @@ def test_heading_across_pi_reads_the_stencil_not_its_clamped_edge():
 
 
 def test_slice_stencil_holds_every_speed_and_heading_reached_before_the_next_table():
-    """A slice model's stencil spans v ± reach (shifted inside [v_min, v_max]) and θ ± reach, levels at most a
-    card grid step apart, and agrees with the plain 2 × 2 stencil where both hold the state."""
+    """With a reach, a slice model's stencil is the card grid's nodes spanning v ± reach (within the speed range)
+    and θ ± reach, and agrees with the plain 2 × 2 stencil where both hold the state."""
     from hjrno_ros.learning.value_function import LearnedValueFunction
 
     vf = LearnedValueFunction(ROOT / "models" / "paper_cnn", device="cpu")
     dv, dtheta = vf.grid.spacings[2], vf.grid.spacings[3]
     xy = vf.window_points((0.0, 0.0))
     v0 = (np.abs(xy[..., 0] - 2.0) - 0.3).astype(np.float32)
-    for v, lo, hi in ((0.5, 0.25, 0.75), (0.95, 0.5, 1.0), (0.0, 0.0, 0.5)):
+    for v, lo, hi in ((0.5, 0.25, 0.75), (0.95, 0.625, 1.0), (0.0, 0.0, 0.25)):
         table = vf.local_table(v0, (0.0, 0.0), v, 0.3, reach=(0.25, 0.25))
         g = table.grid
-        assert (g.lo[2], g.hi[2]) == pytest.approx((lo, hi)) and (g.lo[3], g.hi[3]) == pytest.approx((0.05, 0.55))
-        assert np.all(np.asarray(g.spacings[2:]) <= np.array([dv, dtheta]) + 1e-9)
+        assert (g.lo[2], g.hi[2]) == pytest.approx((lo, hi)) and (g.lo[3], g.hi[3]) == pytest.approx((0.0, 2 * dtheta))
+        assert np.allclose(g.spacings[2:], (dv, dtheta))
     plain = vf.local_table(v0, (0.0, 0.0), 0.5 + dv / 2, 0.3)  # speeds 0.5, 0.625
     wide = vf.local_table(v0, (0.0, 0.0), 0.5, 0.3, reach=(0.25, 0.0))  # speeds 0.25 ... 0.75, the same headings
     state = np.array([0.4, 0.1, 0.5, plain.grid.lo[3]])  # a node of both tables

@@ -1,6 +1,6 @@
 """brt_node on a real map over DDS: Nav2's depot map, careless drivers, the simulated base in real time.
 
-``hjrno bench depot`` (hjrno_ros.tools.depot_check) at CI size: 20 episodes of 6 s against one brt_node
+``hjrno bench depot`` (hjrno_ros.tools.depot_check) at CI size: 12 episodes of 6 s against one brt_node
 process (bundled model), the four drivers in turn (straight at an obstacle, straight at the map's edge,
 goal-seeking, goal-seeking to a goal beyond the map's edge), starts at rest ≥ 0.5 m from obstacles.
 Targets: 0 collisions and 0 exits from the map.  The ≥ 200-episode run is committed in
@@ -24,7 +24,7 @@ from hjrno_ros.tools import depot_check  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DEPOT = ROOT.parent / "shared" / "maps" / "depot.yaml"  # CI has ../shared beside the clone
-EPISODES, SECONDS = 20, 6.0
+EPISODES, SECONDS = 12, 6.0
 
 pytestmark = pytest.mark.skipif(not DEPOT.is_file(), reason="../shared/maps/depot.yaml not beside the checkout")
 

@@ -117,19 +117,23 @@ class LearnedValueFunction:
                      robot: RobotParams | None = None, reach: tuple[float, float] = (0.0, 0.0)
                      ) -> tuple[GridSpec, np.ndarray]:
         """(grid, V on it) over the window centred at ``center``: a table model's whole (v, θ) table, or a slice
-        model's (v, θ) stencil around the state: speeds v ± max(dv/2, reach[0]) (kept within [v_min, v_max]) and
-        headings θ ± max(dθ/2, reach[1]), dv and dθ the card grid's steps at most between levels, so the table
-        holds every speed and heading the robot reaches before the next one; mirrored for a reversing state of a
-        forward-only card (V(x, y, −v, θ) = V(x, y, v, θ + π); core/similarity.py, Coverage).  ``robot``: a
-        covered robot in the card's units (a conditioned model's channels)."""
+        model's (v, θ) stencil around the state: v ± dv/2 and θ ± dθ/2 (dv, dθ the card grid's steps; v kept within
+        [v_min, v_max]), or with a ``reach`` (speed, heading) the card grid's nodes spanning v ± reach[0] and
+        θ ± reach[1], so the table holds every speed and heading the robot reaches before the next one;
+        mirrored for a reversing state of a forward-only card (V(x, y, −v, θ) = V(x, y, v, θ + π);
+        core/similarity.py, Coverage).  ``robot``: a covered robot in the card's units (its parameter channels)."""
         g = self.grid
         if self.whole_table:
             grid = GridSpec((g.lo[0] + center[0], g.lo[1] + center[1], *g.lo[2:]),
                             (g.hi[0] + center[0], g.hi[1] + center[1], *g.hi[2:]), g.shape, g.periodic)
             return grid, self.table(v0, robot)
         mirror = v < 0 and self.params.v_min >= 0
-        speeds = _levels(-v if mirror else v, g.spacings[2], reach[0], (self.params.v_min, self.params.v_max))
-        headings = _levels(theta, g.spacings[3], reach[1])
+        dv, dtheta = g.spacings[2], g.spacings[3]
+        speed = float(-v if mirror else v)
+        if reach[0] <= dv / 2:  # one cell centred on the state, kept within the speed range
+            speed = float(np.clip(speed, self.params.v_min + dv / 2, self.params.v_max - dv / 2))
+        speeds = _levels(speed, dv, reach[0], g.lo[2], (max(g.lo[2], self.params.v_min), g.hi[2]))
+        headings = _levels(theta, dtheta, reach[1], g.lo[3])
         vv, tt = np.meshgrid(speeds, headings + (np.pi if mirror else 0.0), indexing="ij")
         params = self.condition(robot)
         slices = self.predict(v0, vv.ravel(), tt.ravel(), None if params is None else np.repeat(params, vv.size, 0))
@@ -149,15 +153,17 @@ class LearnedValueFunction:
         return value_table(*self.local_values(v0, center, v, theta, robot, reach))
 
 
-def _levels(centre: float, step: float, reach: float, bounds: tuple[float, float] | None = None) -> np.ndarray:
-    """Evenly spaced levels, at most ``step`` apart, over centre ± max(step/2, reach), shifted (not cut) to lie
-    within ``bounds`` and cut to them only where the span is wider than the bounds."""
-    half = max(step / 2, reach)
-    lo, hi = centre - half, centre + half
+def _levels(centre: float, step: float, reach: float, origin: float,
+            bounds: tuple[float, float] | None = None) -> np.ndarray:
+    """The levels of one stencil axis: with no ``reach`` beyond half a ``step``, two levels half a step either side
+    of ``centre`` (one grid cell centred on the state); else the grid's own nodes (``origin`` + k·step) from the
+    one at or below centre − reach to the one at or above centre + reach, those within ``bounds``.  Grid nodes make the
+    interpolation between the two nodes around the state the same whatever the reach (exact similarity)."""
+    if reach <= step / 2:
+        return np.array([centre - step / 2, centre + step / 2])
+    k = np.arange(math.floor((centre - reach - origin) / step + 1e-9), math.ceil((centre + reach - origin) / step
+                                                                                 - 1e-9) + 1)
+    levels = origin + step * k
     if bounds is not None:
-        if hi - lo >= bounds[1] - bounds[0]:
-            lo, hi = bounds
-        else:
-            shift = max(bounds[0] - lo, 0.0) - max(hi - bounds[1], 0.0)
-            lo, hi = lo + shift, hi + shift
-    return np.linspace(lo, hi, max(2, math.ceil((hi - lo) / step - 1e-9) + 1))
+        levels = levels[(levels >= bounds[0] - 1e-9) & (levels <= bounds[1] + 1e-9)]
+    return levels
