@@ -11,7 +11,7 @@ from scipy.interpolate import RegularGridInterpolator
 from hjrno_ros.core.braking import braking_value
 from hjrno_ros.core.dynamics import DiffDriveParams
 from hjrno_ros.core.geometry import Box, union_sdf
-from hjrno_ros.core.grids import car_grid
+from hjrno_ros.core.grids import GridSpec, car_grid
 from hjrno_ros.core.least_restrictive import certificate, decide, filter_least_restrictive, step
 from hjrno_ros.core.safety_filter import FilterSettings
 from hjrno_ros.core.value_table import ReversingTable, ValueTable
@@ -158,3 +158,22 @@ def test_a_command_is_judged_where_the_robot_will_be_when_it_acts(cert):
     now = decide(ROBOT, SETTINGS, cert, state, 1.0, 0.0)
     later = decide(ROBOT, SETTINGS, cert, state, 1.0, 0.0, previous=(1.0, 0.0), delay=0.2)
     assert later.intervened and later.linear < now.linear
+
+
+def test_a_state_no_certificate_covers_stops_the_robot():
+    """A car whose disturbance moves it at rest (d₀ > 0) has no braking bound: where its table does not hold the
+    state, or every command leaves the table, nothing vouches for any command and the filter sends (0, 0)."""
+    from hjrno_ros.core.dynamics import CarParams
+
+    car = CarParams()  # the paper's car, d0 = 0.1 m/s
+    grid = GridSpec((-5.0, -5.0, 0.4, -0.2), (5.0, 5.0, 0.6, 0.2), (8, 8, 2, 2))  # a slice model's stencil
+    stencil = ValueTable(grid, np.ones(grid.shape))
+    cert = certificate(car, _clearance, stencil, 0.0)
+    outside = decide(car, SETTINGS, cert, np.array([0.0, 0.0, 0.9, 0.0]), 0.9, 0.0)
+    assert (outside.linear, outside.angular, outside.intervened) == (0.0, 0.0, True)
+    assert outside.reason.startswith("non-finite certificate")
+    inside = decide(car, SETTINGS, cert, np.array([0.0, 0.0, 0.5, 0.0]), 0.5, 0.0)
+    assert (inside.linear, inside.angular, inside.intervened) == (0.5, 0.0, False)
+    out, changed, _ = filter_least_restrictive(car, SETTINGS, cert, np.array([[0.0, 0.0, 0.6, 0.0]]),
+                                               np.array([[1.0, 0.0]]), np.array([[1.0, 0.0]]), 0.2)
+    assert changed[0] and np.array_equal(out[0], (0.0, 0.0))  # by the time it acts, the speed has left the table

@@ -50,6 +50,20 @@ def _concrete(values: tuple) -> bool:
     return all(isinstance(v, (int, float, np.floating, np.integer)) for v in values)
 
 
+def _check_limits(params: Any, kind: str, turn: str) -> None:
+    """ValueError naming the first unusable limit of a ground robot's ``params`` (``turn``: its turn limit)."""
+    values = dataclasses.astuple(params)
+    if not _concrete(values):
+        return
+    _check(all(math.isfinite(v) for v in values), f"{kind} parameters must be finite: {params}")
+    _check(params.a_max > 0, f"a_max must be > 0, got {params.a_max}")
+    _check(getattr(params, turn) > 0, f"{turn} must be > 0, got {getattr(params, turn)}")
+    _check(params.v_max > 0, f"v_max must be > 0, got {params.v_max}")
+    _check(params.v_min < params.v_max, f"need v_min < v_max, got v_min={params.v_min} v_max={params.v_max}")
+    _check(params.tracking_error >= 0, f"tracking_error (δ) must be >= 0, got {params.tracking_error}")
+    _check(params.d0 >= 0, f"d0 must be >= 0, got {params.d0}")
+
+
 @dataclasses.dataclass(frozen=True, init=False)
 class CarParams:
     """Limits and disturbance bound of the dynamic Dubins car (docs/design.md, "Robot models").
@@ -78,16 +92,7 @@ class CarParams:
         self.__post_init__()
 
     def __post_init__(self) -> None:
-        values = dataclasses.astuple(self)
-        if not _concrete(values):
-            return
-        _check(all(math.isfinite(v) for v in values), f"car parameters must be finite: {self}")
-        _check(self.a_max > 0, f"a_max must be > 0, got {self.a_max}")
-        _check(self.kappa_max > 0, f"kappa_max must be > 0, got {self.kappa_max}")
-        _check(self.v_max > 0, f"v_max must be > 0, got {self.v_max}")
-        _check(self.v_min < self.v_max, f"need v_min < v_max, got v_min={self.v_min} v_max={self.v_max}")
-        _check(self.tracking_error >= 0, f"tracking_error (δ) must be >= 0, got {self.tracking_error}")
-        _check(self.d0 >= 0, f"d0 must be >= 0, got {self.d0}")
+        _check_limits(self, "car", "kappa_max")
 
     @classmethod
     def paper(cls, **changes: float) -> CarParams:
@@ -169,16 +174,7 @@ class DiffDriveParams:
     model = DIFF_DRIVE_MODEL
 
     def __post_init__(self) -> None:
-        values = dataclasses.astuple(self)
-        if not _concrete(values):
-            return
-        _check(all(math.isfinite(v) for v in values), f"diff-drive parameters must be finite: {self}")
-        _check(self.a_max > 0, f"a_max must be > 0, got {self.a_max}")
-        _check(self.omega_max > 0, f"omega_max must be > 0, got {self.omega_max}")
-        _check(self.v_max > 0, f"v_max must be > 0, got {self.v_max}")
-        _check(self.v_min < self.v_max, f"need v_min < v_max, got v_min={self.v_min} v_max={self.v_max}")
-        _check(self.tracking_error >= 0, f"tracking_error (δ) must be >= 0, got {self.tracking_error}")
-        _check(self.d0 >= 0, f"d0 must be >= 0, got {self.d0}")
+        _check_limits(self, "diff-drive", "omega_max")
 
     disturbance_max = CarParams.disturbance_max
 

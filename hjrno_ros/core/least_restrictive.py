@@ -142,19 +142,24 @@ def filter_least_restrictive(params: RobotParams, settings: FilterSettings, cert
                              delay: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Commands ``(n, 2)``, changed ``(n,)`` and W at the states ``(n,)`` for nominal twists ``(n, 2)`` (clipped to
     the limits first; a change by clipping alone does not count as changed).  With ``delay`` > 0 the commands are
-    judged from the states :func:`ahead` (``previous``: the twists the base executes until then)."""
+    judged from the states :func:`ahead` (``previous``: the twists the base executes until then).  Where no
+    certificate covers the state a command acts at (W = −∞: beyond a car's table, which has no braking bound) the
+    command is (0, 0) and W −∞."""
     here, nominal = np.asarray(states, float), np.asarray(nominal, float)
     states, lag = ahead(params, settings, here, previous, delay)
     nominal = clip_to_limits(params, states, nominal, settings.dt)
     nxt, drift = _after(params, settings, states, nominal[:, None])
     w_here, w_now, w_next = np.split(cert(np.concatenate([here, states, nxt[:, 0]])), 3)  # one lookup, not three
     need = required(settings, w_now - lag)
-    changed = w_next - drift[:, 0] - lag < need
+    blind = ~np.isfinite(w_now)  # no table and no bound where the command acts (a car, d₀ > 0): fail closed
+    changed = blind | ~(w_next - drift[:, 0] - lag >= need)
     out = nominal.copy()
-    if changed.any():  # only the commands the nominal fails are searched (most pass: a cheap common case)
-        out[changed] = _closest_admissible(params, settings, cert, states[changed], nominal[changed],
-                                           lag[changed], need[changed])
-    return out, changed, w_here
+    search = changed & ~blind  # only the commands the nominal fails are searched (most pass: a cheap common case)
+    if search.any():
+        out[search] = _closest_admissible(params, settings, cert, states[search], nominal[search], lag[search],
+                                          need[search])
+    out[blind] = 0.0
+    return out, changed, np.where(blind, -np.inf, w_here)
 
 
 def _closest_admissible(params: RobotParams, settings: FilterSettings, cert: Certificate, states: np.ndarray,
@@ -168,6 +173,7 @@ def _closest_admissible(params: RobotParams, settings: FilterSettings, cert: Cer
     safest = w >= w.max(1, keepdims=True) - 1e-9  # none admissible: the highest W, nearest the nominal among ties
     best = np.where(ok.any(1), np.where(ok, distance, np.inf).argmin(1), np.where(safest, distance, np.inf).argmin(1))
     out = tries[np.arange(len(states)), best]
+    out[~np.isfinite(w.max(1))] = 0.0  # every command leaves what the certificate covers: stop
     refine = ok.any(1)
     if refine.any():  # the admissible point nearest the nominal on the segment nominal -> best
         t = np.linspace(0.0, 1.0, SEGMENT_POINTS + 1)[1:]
@@ -192,6 +198,8 @@ def decide(params: RobotParams, settings: FilterSettings, cert: Certificate, sta
     out, changed, w = filter_least_restrictive(params, settings, cert, state[None], nominal,
                                                None if previous is None else np.array([previous], float), delay)
     value = float(w[0])
+    if not math.isfinite(value):
+        return stop(math.nan, "non-finite certificate: no value table or braking bound covers the state")
     if not np.all(np.isfinite(out)):
         return stop(value, "non-finite filtered command")
     if changed[0]:

@@ -11,22 +11,19 @@ interventions, command latency and value-grid snapshots.
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import time
 from collections.abc import Callable
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import TwistStamped
-from nav_msgs.msg import OccupancyGrid, Odometry
-from rclpy.executors import SingleThreadedExecutor
+from nav_msgs.msg import OccupancyGrid
 from rclpy.node import Node
-from std_msgs.msg import String
 
 from hjrno_ros.core.dynamics import RobotParams
 from hjrno_ros.core.geometry import union_sdf
-from hjrno_ros.ros.messages import LATCHED, occupancy_array, occupancy_message, odometry_message
+from hjrno_ros.ros.messages import occupancy_array, occupancy_message, odometry_message
+from hjrno_ros.ros.spin import base_topics, drive_base
 from hjrno_ros.studies import closed_loop
 from hjrno_ros.studies.closed_loop import EpisodeSettings
 
@@ -65,12 +62,7 @@ class SimRobot(Node):
         self._filtered_at = -math.inf
         self._sent: dict[tuple[int, int], tuple[float, np.ndarray]] = {}
         self._intervened = False
-        self.map_pub = self.create_publisher(OccupancyGrid, "map", LATCHED)
-        self.odom_pub = self.create_publisher(Odometry, "odom", 10)
-        self.cmd_pub = self.create_publisher(TwistStamped, "cmd_vel_smoothed", 10)
-        self.create_subscription(TwistStamped, "cmd_vel", self._on_cmd, 50)
-        self.create_subscription(OccupancyGrid, "brt/value_grid", self._on_grid, LATCHED)
-        self.create_subscription(String, "brt/status", lambda m: setattr(self.log, "status", json.loads(m.data)), 10)
+        self.map_pub, self.odom_pub, self.cmd_pub = base_topics(self, self._on_cmd, self._on_grid)
         grid = occupancy_message(occupancy, resolution, origin)
         grid.header.stamp = self.get_clock().now().to_msg()
         self.map_pub.publish(grid)
@@ -79,6 +71,10 @@ class SimRobot(Node):
 
     def now(self) -> float:
         return time.monotonic() - self.t0
+
+    def begin(self) -> None:
+        """Start the episode's clock and motion (brt_node filters)."""
+        self.running, self.t0 = True, time.monotonic()
 
     def _step(self) -> None:
         """Physics at odom_rate: integrate with the latest filtered command, publish odometry."""
@@ -148,26 +144,6 @@ def drive(domain: int, robot_args: dict, seconds: float, ready: Callable[[Log], 
           timeout: float = 120.0) -> Log:
     """Create a SimRobot on ``domain`` (``robot_args``: its constructor's keywords), spin until
     ``ready(log)`` (brt_node filtering), then drive for ``seconds`` or until a collision."""
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=domain)
-    robot = SimRobot(context=context, **robot_args)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(robot)
-    try:
-        deadline = time.monotonic() + timeout
-        while not ready(robot.log):
-            if time.monotonic() > deadline:
-                raise RuntimeError(f"brt_node did not start filtering within {timeout:g} s: "
-                                   f"{robot.log.status.get('reason', 'no status received')}")
-            executor.spin_once(timeout_sec=0.05)
-        robot.running = True
-        robot.t0 = time.monotonic()
-        end = time.monotonic() + seconds
-        while time.monotonic() < end and robot.log.collided_at is None:
-            executor.spin_once(timeout_sec=0.01)
-        robot.running = False
-        return robot.log
-    finally:
-        executor.shutdown(timeout_sec=2.0)
-        robot.destroy_node()
-        rclpy.shutdown(context=context)
+    robot = drive_base(domain, lambda context: SimRobot(context=context, **robot_args), seconds, ready,
+                       lambda r: r.log.collided_at is not None, timeout)
+    return robot.log

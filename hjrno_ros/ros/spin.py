@@ -1,13 +1,21 @@
-"""A driver node spinning on its own context and ROS domain in a background thread (benches, fuzzing)."""
+"""Driver nodes on their own context and ROS domain: spun in a background thread (benches, fuzzing), or driven in
+the calling thread for a stretch of real time once brt_node filters (the simulated bases)."""
 
 from __future__ import annotations
 
+import json
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
 import rclpy
+from geometry_msgs.msg import TwistStamped
+from nav_msgs.msg import OccupancyGrid, Odometry
 from rclpy.executors import SingleThreadedExecutor
+from std_msgs.msg import String
+
+from hjrno_ros.ros.messages import LATCHED
 
 
 def spin_in_background(domain_id: int, make: Callable[[Any], Any]) -> tuple[Any, Callable[[], None]]:
@@ -28,3 +36,44 @@ def spin_in_background(domain_id: int, make: Callable[[Any], Any]) -> tuple[Any,
         spinner.join(timeout=2.0)
 
     return node, stop
+
+
+def drive_base(domain_id: int, make: Callable[[Any], Any], seconds: float, ready: Callable[[Any], bool],
+               done: Callable[[Any], bool], timeout: float = 120.0) -> Any:
+    """A simulated base ``make(context)`` (with ``log.status``, ``begin()`` and ``running``) on a fresh context of
+    ``domain_id``: spun until ``ready(base.log)`` (brt_node filtering; RuntimeError with the node's reason after
+    ``timeout`` s), then ``begin()`` and driven for ``seconds`` of real time or until ``done(base)``; returned
+    after its executor, node and context are shut down."""
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    base = make(context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(base)
+    try:
+        deadline = time.monotonic() + timeout
+        while not ready(base.log):
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"brt_node did not start filtering within {timeout:g} s: "
+                                   f"{base.log.status.get('reason', 'no status received')}")
+            executor.spin_once(timeout_sec=0.05)
+        base.begin()
+        end = time.monotonic() + seconds
+        while time.monotonic() < end and not done(base):
+            executor.spin_once(timeout_sec=0.01)
+        base.running = False
+        return base
+    finally:
+        executor.shutdown(timeout_sec=2.0)
+        base.destroy_node()
+        rclpy.shutdown(context=context)
+
+
+def base_topics(base: Any, on_cmd: Callable[[TwistStamped], None], on_grid: Callable[[OccupancyGrid], None]
+                ) -> tuple[Any, Any, Any]:
+    """A simulated base's side of brt_node's topics: (map, odom, cmd_vel_smoothed) publishers; the filtered
+    commands go to ``on_cmd``, the value grids to ``on_grid``, the status JSON into ``base.log.status``."""
+    base.create_subscription(TwistStamped, "cmd_vel", on_cmd, 50)
+    base.create_subscription(OccupancyGrid, "brt/value_grid", on_grid, LATCHED)
+    base.create_subscription(String, "brt/status", lambda m: setattr(base.log, "status", json.loads(m.data)), 10)
+    return (base.create_publisher(OccupancyGrid, "map", LATCHED), base.create_publisher(Odometry, "odom", 10),
+            base.create_publisher(TwistStamped, "cmd_vel_smoothed", 10))

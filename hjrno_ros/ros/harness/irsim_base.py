@@ -12,20 +12,17 @@ own timer) as a fail-closed stop; the node's status counts all its fail-closed s
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import time
 from collections.abc import Callable
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import TwistStamped
-from nav_msgs.msg import OccupancyGrid, Odometry
-from rclpy.executors import SingleThreadedExecutor
+from nav_msgs.msg import OccupancyGrid
 from rclpy.node import Node
-from std_msgs.msg import String
 
-from hjrno_ros.ros.messages import LATCHED, occupancy_message, odometry_message
+from hjrno_ros.ros.messages import occupancy_message, odometry_message
+from hjrno_ros.ros.spin import base_topics, drive_base
 from hjrno_ros.studies.navigation import STOPPED_SPEED, STOPPED_TURN, EpisodeResult, GoalDriver, NavMap
 
 
@@ -54,12 +51,7 @@ class IrSimBase(Node):
         self._filtered, self._filtered_at = np.zeros(2), -math.inf
         self._sent: dict[tuple[int, int], tuple[float, np.ndarray]] = {}
         self._changed = False
-        self.map_pub = self.create_publisher(OccupancyGrid, "map", LATCHED)
-        self.odom_pub = self.create_publisher(Odometry, "odom", 10)
-        self.cmd_pub = self.create_publisher(TwistStamped, "cmd_vel_smoothed", 10)
-        self.create_subscription(TwistStamped, "cmd_vel", self._on_cmd, 50)
-        self.create_subscription(OccupancyGrid, "brt/value_grid", self._on_grid, LATCHED)
-        self.create_subscription(String, "brt/status", lambda m: setattr(self.log, "status", json.loads(m.data)), 10)
+        self.map_pub, self.odom_pub, self.cmd_pub = base_topics(self, self._on_cmd, self._on_grid)
         grid = occupancy_message(nav_map.occupancy(), nav_map.resolution, nav_map.origin)
         grid.header.stamp = self.get_clock().now().to_msg()
         self.map_pub.publish(grid)
@@ -67,6 +59,11 @@ class IrSimBase(Node):
 
     def now(self) -> float:
         return time.monotonic() - self.t0
+
+    def begin(self) -> None:
+        """Start the episode's clock and motion (brt_node filters); its stops count from here."""
+        self.log.stops_before = self.log.status.get("counts", {}).get("stops", 0)
+        self.running, self.t0 = True, time.monotonic()
 
     def _tick(self) -> None:
         """Every step_time: the nominal command out, IR-SIM one step with the latest filtered one, odometry out."""
@@ -129,26 +126,5 @@ def drive(domain: int, make_base: Callable[..., IrSimBase], seconds: float, read
           timeout: float = 120.0) -> IrSimBase:
     """Create the base on ``domain`` (``make_base(context=...)``), spin until ``ready(log)`` (the filter is up),
     then drive for ``seconds`` of real time or until a collision or the last goal."""
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=domain)
-    base = make_base(context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(base)
-    try:
-        deadline = time.monotonic() + timeout
-        while not ready(base.log):
-            if time.monotonic() > deadline:
-                raise RuntimeError(f"brt_node did not start filtering within {timeout:g} s: "
-                                   f"{base.log.status.get('reason', 'no status received')}")
-            executor.spin_once(timeout_sec=0.05)
-        base.log.stops_before = base.log.status.get("counts", {}).get("stops", 0)
-        base.running, base.t0 = True, time.monotonic()
-        end = time.monotonic() + seconds
-        while time.monotonic() < end and base.log.collided_at is None and not base.driver.finished:
-            executor.spin_once(timeout_sec=0.01)
-        base.running = False
-        return base
-    finally:
-        executor.shutdown(timeout_sec=2.0)
-        base.destroy_node()
-        rclpy.shutdown(context=context)
+    return drive_base(domain, lambda context: make_base(context=context), seconds, ready,
+                      lambda base: base.log.collided_at is not None or base.driver.finished, timeout)
