@@ -13,6 +13,7 @@ import contextlib
 import json
 import math
 import os
+import signal
 import subprocess
 import sys
 import threading
@@ -797,6 +798,22 @@ def test_epsilon_below_the_calibrated_margin_is_flagged(ros):
                                 for kv in driver.diagnostics.values), 3.0)
     finally:
         driver.set_param("epsilon", eps)
+
+
+def test_an_unconfigured_node_exits_on_sigint(model_stem):
+    """With autostart false nothing wakes the executor until a lifecycle manager calls; SIGINT still ends the
+    node within a second, with exit 0 and no traceback."""
+    from hjrno_ros.tools.node_process import brt_node_process
+
+    with brt_node_process(DOMAIN + 31, {"autostart": False, "robot_model": "car"}, model_stem) as (proc, log_tail):
+        maps = Path(f"/proc/{proc.pid}/maps")
+        assert wait_for(lambda: proc.poll() is not None or "rclpy" in maps.read_text(), 30.0)
+        time.sleep(4.0)  # past the imports: spinning, unconfigured
+        assert proc.poll() is None, log_tail(20)
+        start = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        code = proc.wait(timeout=15.0)
+        assert code == 0 and time.monotonic() - start < 2.0 and "Traceback" not in log_tail(50), log_tail(20)
 
 
 def test_interrupt_at_any_moment_of_start_up_exits_cleanly(model_stem):

@@ -9,6 +9,7 @@ import signal
 import sys
 
 _interrupted = False
+SPIN_WAKE_S = 0.2  # s: the longest the executor waits, so an interrupt is handled within it in any state
 
 
 def _interrupt(signum: int, frame: object) -> None:
@@ -53,7 +54,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if node.get_parameter("autostart").value:
             node.start()  # plain mode; with autostart false a lifecycle manager configures and activates
-        executor.spin()
+        while rclpy.ok():  # a bounded wait: unconfigured, nothing wakes the executor, and SIGINT waits for a wake-up
+            executor.spin_once(timeout_sec=SPIN_WAKE_S)
     except StartupError as err:
         if not _interrupted:  # an interrupt during the model load can surface as an import error
             logger.fatal(f"cannot start: {err}")

@@ -26,6 +26,7 @@ import numpy as np
 from geometry_msgs.msg import PoseWithCovarianceStamped, Twist, TwistStamped
 from nav_msgs.msg import OccupancyGrid, Odometry
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from std_msgs.msg import String
@@ -65,6 +66,25 @@ class BrtNode(LifecycleNode):
         self._cfg, _ = parameters.normalise({name: self.get_parameter(name).value for name in parameters.PARAMETERS})
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
+        change = getattr(self, "_service_change_state", None)
+        if change is not None:
+            change.callback = self._refusing(change.callback)
+
+    def _refusing(self, change_state: Callable[[Any, Any], Any]) -> Callable[[Any, Any], Any]:
+        """The change_state service answering a transition that does not exist from the present state (activate
+        while active, an unknown id) with success false and a warning; rclpy raises out of the executor instead,
+        which would end the node."""
+
+        def callback(request: Any, response: Any) -> Any:
+            try:
+                return change_state(request, response)
+            except _rclpy.RCLError as err:
+                self.get_logger().warning(f"lifecycle transition {request.transition.id} "
+                                          f"'{request.transition.label}' refused: {err}")
+                response.success = False
+                return response
+
+        return callback
 
     # ------------------------------------------------------------------ lifecycle
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
