@@ -233,8 +233,8 @@ def test_sample_raster_reads_the_block_it_needs_and_beyond_the_map_is_outside():
         assert np.allclose(got_outside[~beyond], expect[~beyond], rtol=1e-9, atol=1e-9), where
 
 
-def test_fuzz_finding_d_sample_raster_far_points_read_the_wrong_cells():
-    """FUZZ FINDING D (fixed): a point more than ~9.2e18 cells from the raster (|x| ≳
+def test_sample_raster_reads_the_right_cells_for_far_points():
+    """Found by fuzzing (fixed): a point more than ~9.2e18 cells from the raster (|x| ≳
     9.2e18·resolution m: a map origin or an odometry position of 1e20 m, both accepted as finite) overflows the
     int64 casts in sample_raster (block bounds; scipy's coordinates): (1) that point samples the opposite edge, not
     the nearest one; (2) every other point of the same call samples a wrong cell, even with ``outside``; and ±inf
@@ -415,8 +415,8 @@ def test_filter_batch_is_finite_within_the_limits_and_rows_are_independent():
     assert rows > 2000, rows
 
 
-def test_fuzz_finding_a_qp_with_a_speed_dependent_disturbance_raises():
-    """FUZZ FINDING A (fixed): ``qp`` mode with a car whose disturbance grows with speed
+def test_qp_with_a_speed_dependent_disturbance_stays_finite_and_within_limits():
+    """Found by fuzzing (fixed): ``qp`` mode with a car whose disturbance grows with speed
     (tracking_error > 0, CarParams.product()) raises ValueError from minimal_change (it reads params.d_max); the
     node catches it and publishes a stop for every command: ``qp`` is unusable with such a model card."""
     p = CarParams.product()
@@ -426,8 +426,8 @@ def test_fuzz_finding_a_qp_with_a_speed_dependent_disturbance_raises():
     assert math.isfinite(d.linear) and within_limits(p, 0.5, d.linear, d.angular, settings.dt), d
 
 
-def test_fuzz_finding_b_a_huge_speed_gives_an_infinite_turn_rate():
-    """FUZZ FINDING B (fixed): at a finite but huge speed (|v| ≳ 1e300) the angular bound
+def test_a_huge_speed_gives_a_finite_turn_rate():
+    """Found by fuzzing (fixed): at a finite but huge speed (|v| ≳ 1e300) the angular bound
     κ_max·|v| overflows to inf, and the safe control's turn rate v·κ is inf: filter_command returns angular ±inf
     (switch/blend/qp).  The node clips v to the model's range first, so brt_node does not reach it; other
     callers (studies) can."""
@@ -438,8 +438,8 @@ def test_fuzz_finding_b_a_huge_speed_gives_an_infinite_turn_rate():
     assert math.isfinite(d.linear) and math.isfinite(d.angular), d
 
 
-def test_fuzz_finding_c_qp_at_a_subnormal_speed_returns_nan():
-    """FUZZ FINDING C (fixed; it was reachable in brt_node): ``qp`` mode, the paper car (the bundled
+def test_qp_at_a_subnormal_speed_stays_finite():
+    """Found by fuzzing (fixed; it was reachable in brt_node): ``qp`` mode, the paper car (the bundled
     model's), V ≤ ε, ∂V/∂v < 0 and a subnormal speed (odometry twist.linear.x = 1e-310: finite, inside [v_min,
     v_max], so the node passes it on).  Then g = (0, ∂V/∂θ·v·κ_max) has one exact zero (the speed limit) and one
     subnormal entry; the kink (sign(g) − z0)/g overflows to inf, inf·0 = NaN, and filter_command returns
