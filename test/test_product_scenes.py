@@ -5,6 +5,7 @@ base integrates the filtered command in real time with a disturbance ‖d‖ ≤
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import threading
 
@@ -90,6 +91,30 @@ def test_a_solver_card_waits_for_a_settled_table(solver_card):
         load_model({**cfg, "model_path": str(solver_card), "refine_horizon": 0.0})
     with pytest.raises(ValueError, match="write the robot's limits into the card"):
         load_model({**cfg, "model_path": str(solver_card), "refine_horizon": 10.0, "v_max": 2.0})
+
+
+def test_every_value_source_has_the_members_the_node_reads(solver_card):
+    """The learned operator, the same at another robot's size and a solver card all carry ValueSource's members;
+    only the solver card does not predict (the node waits for its solver), and asking it to raises."""
+    import typing
+
+    from hjrno_ros.core.scaled_values import ScaledValueFunction, covered_scaling
+    from hjrno_ros.core.value_source import ValueSource
+    from hjrno_ros.learning.value_function import LearnedValueFunction
+    from hjrno_ros.ros.model_files import SolverGrid
+
+    learned = LearnedValueFunction(ROOT / "models" / "default", device="cpu")
+    small = dataclasses.replace(learned.params, v_max=0.5, v_min=-0.5, omega_max=1.0, a_max=0.5)
+    scaling = covered_scaling(learned.params, small, learned.card.inputs.get("param_ranges"))
+    scaled = ScaledValueFunction(learned, scaling, small)
+    solver = SolverGrid(ModelCard.load(solver_card))
+    members = [*typing.get_type_hints(ValueSource), "window_points", "local_table"]
+    for source, predicts in ((learned, True), (scaled, True), (solver, False)):
+        assert all(hasattr(source, name) for name in members), (source, members)
+        assert source.predicts is predicts
+    assert scaled.whole_table and not solver.whole_table
+    with pytest.raises(TypeError, match="no operator"):
+        solver.local_table(np.zeros(solver.shape), (0.0, 0.0), 0.0, 0.0)
 
 
 SCENE_NAMES = sorted({s.name for s in CAR_SCENES + DIFF_DRIVE_SCENES})

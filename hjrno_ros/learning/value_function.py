@@ -55,6 +55,7 @@ class LearnedValueFunction:
         self.params: RobotParams = self.card.dynamics
         self.epsilon = self.card.epsilon  # None when uncalibrated; the filter's default: self.card.margin()
         self.whole_table = self.spec.table is not None  # every (v, θ) of the window in one pass
+        self.predicts = True  # a ValueSource with an operator (core/value_source.py)
 
     @property
     def window(self) -> tuple[float, float]:

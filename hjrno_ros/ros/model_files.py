@@ -10,6 +10,7 @@ import numpy as np
 
 from hjrno_ros.core.model_card import ModelCard, paths
 from hjrno_ros.core.scaled_values import ScaledValueFunction, covered_scaling, filter_params
+from hjrno_ros.core.value_source import ValueSource
 from hjrno_ros.ros.robot import robot_params
 
 
@@ -49,8 +50,10 @@ def resolve_model(model_path: str) -> Path:
 
 
 class SolverGrid:
-    """A solver card's stand-in for the learned value function: the grid, the car and the window of the published
-    value grid, but no operator (``local_table`` is None): values come from the solver's refined table only."""
+    """A solver card's :class:`~hjrno_ros.core.value_source.ValueSource`: the grid, the robot and the window of the
+    published value grid, but no operator (``predicts`` False): values come from the solver's refined table only."""
+
+    whole_table, predicts = False, False
 
     def __init__(self, card: ModelCard) -> None:
         self.card, self.grid, self.params, self.window = card, card.grid, card.dynamics, card.window
@@ -62,11 +65,11 @@ class SolverGrid:
         y = np.linspace(self.grid.lo[1], self.grid.hi[1], ny) + center[1]
         return np.stack(np.meshgrid(x, y, indexing="ij"), -1)
 
-    def local_table(self, *args: Any, **kwargs: Any) -> None:
-        return None
+    def local_table(self, *args: Any, **kwargs: Any) -> Any:
+        raise TypeError("a solver card has no operator: its tables come from the node's solver")
 
 
-def load_model(cfg: dict[str, Any]) -> tuple[ModelCard, Any, Path]:
+def load_model(cfg: dict[str, Any]) -> tuple[ModelCard, ValueSource, Path]:
     """(card, learned value function, stem) for the node's parameters; the card is checked before torch and the
     weights are loaded.  A solver card needs ``refine_horizon`` > 0 and loads no weights.  ValueError, one line."""
     stem = resolve_model(cfg["model_path"])

@@ -23,6 +23,7 @@ import numpy as np
 
 from hjrno_ros.core import geometry
 from hjrno_ros.core.grids import wrap_angle
+from hjrno_ros.core.value_source import ValueSource
 from hjrno_ros.ros.inputs import MapData, MapInput, RobotState, StateInput
 from hjrno_ros.ros.parameters import obstacle_threshold
 from hjrno_ros.ros.refinement import Refinement
@@ -67,7 +68,7 @@ class ValueWorker:
     """Owns the value table; ``start``/``stop`` its thread.  ``publish(values, info, map, state)`` is called
     from the worker after each new table; ``log(level, text)`` reports errors."""
 
-    def __init__(self, vf: Any, maps: MapInput, states: StateInput, cfg: Callable[[], dict],
+    def __init__(self, vf: ValueSource, maps: MapInput, states: StateInput, cfg: Callable[[], dict],
                  publish: Callable[[np.ndarray, dict, MapData, RobotState], None],
                  log: Callable[[str, str], None], refinement: Refinement | None = None) -> None:
         self.vf, self.maps, self.states, self.cfg, self.publish, self.log = vf, maps, states, cfg, publish, log
@@ -182,10 +183,10 @@ class ValueWorker:
         center = (state.x, state.y)
         v = min(max(state.v, p.v_min), p.v_max)
         if refined is None:
+            if not self.vf.predicts:  # a solver card: no operator, wait for the solver's table
+                return
             table = self.vf.local_table(self.v0(m, self.vf.window_points(center)), center, v, state.theta,
                                         reach=self.reach)
-            if table is None:  # a solver card: no operator, wait for the solver's table
-                return
         else:
             table = refined.table
         latency = 1e3 * (time.perf_counter() - start)
@@ -218,7 +219,7 @@ class ValueWorker:
     @property
     def whole_table(self) -> bool:
         """Whether each table holds every speed and heading of its window (a table model)."""
-        return bool(getattr(self.vf, "whole_table", False))
+        return self.vf.whole_table
 
     def recenter_distance(self, cfg: dict) -> float:
         """m: ``recenter_distance``, at most a quarter of the window's width (a small robot's window is small)."""
