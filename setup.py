@@ -29,7 +29,7 @@ setup(
     entry_points={
         "console_scripts": [
             "hjrno = hjrno_ros.cli:main",
-            "brt_node = hjrno_ros.ros.main:main",
+            "brt_node = hjrno_ros.ros.brt_node.main:main",
         ],
     },
 )

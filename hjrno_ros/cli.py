@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 from hjrno_ros import __version__
-from hjrno_ros.learning.calibration import DEFAULT_MARGIN
+from hjrno_ros.studies.calibration import DEFAULT_MARGIN
 
 
 def _shape(text: str) -> tuple[int, ...]:
@@ -175,17 +175,18 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 def cmd_ensemble(args: argparse.Namespace) -> int:
     """Save several trained models as one whose output is their mean."""
-    from hjrno_ros.learning import model_ensemble
+    from hjrno_ros.learning import combine
 
     command = "hjrno " + " ".join(shlex.quote(a) for a in sys.argv[1:])
-    weights = model_ensemble.combine(args.model, args.out, command, pessimism=args.pessimism)
+    weights = combine.combine(args.model, args.out, command, pessimism=args.pessimism)
     print(f"wrote {weights} and {Path(args.out).name}.json ({len(args.model)} members); "
           f"calibrate it before use: hjrno calibrate --model {args.out}")
     return 0
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from hjrno_ros.learning import checkpoint, evaluation
+    from hjrno_ros.learning import checkpoint
+    from hjrno_ros.studies import evaluation
 
     if args.superres:
         data = args.data or checkpoint.folders_with_test_split(checkpoint.load_card(args.model.split(",")[0]))[0]
@@ -213,8 +214,8 @@ def _models(items: list[str] | None) -> dict[str, str]:
 
 def _data_folders(data: str | None, stem: str, unconverged: bool) -> list[str]:
     """``--data``, or else the card's test folders that can be halved (a one-room split is left out, with a note)."""
-    from hjrno_ros.datasets import held_out
     from hjrno_ros.learning import checkpoint
+    from hjrno_ros.studies import held_out
 
     if data:
         return data.split(",")
@@ -228,7 +229,7 @@ def _data_folders(data: str | None, stem: str, unconverged: bool) -> list[str]:
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     """Split-conformal ε for a model, written into its card (the node's default margin)."""
-    from hjrno_ros.learning.calibration import calibrate_model
+    from hjrno_ros.studies.calibration import calibrate_model
 
     folders = _data_folders(args.data, args.model, args.allow_unconverged)
     entry = calibrate_model(args.model, folders, args.alpha, args.beta, args.draws, args.seed, args.margin,

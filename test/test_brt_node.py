@@ -43,9 +43,9 @@ from std_srvs.srv import SetBool  # noqa: E402
 from hjrno_ros.core import geometry  # noqa: E402
 from hjrno_ros.core.safety_filter import FilterSettings  # noqa: E402
 from hjrno_ros.learning import checkpoint  # noqa: E402
-from hjrno_ros.ros.node import BrtNode  # noqa: E402
-from hjrno_ros.ros.parameters import refined_filter_settings  # noqa: E402
-from hjrno_ros.ros.value_worker import INFERENCE_NICE  # noqa: E402
+from hjrno_ros.ros.brt_node.node import BrtNode  # noqa: E402
+from hjrno_ros.ros.brt_node.parameters import refined_filter_settings  # noqa: E402
+from hjrno_ros.ros.brt_node.value_worker import INFERENCE_NICE  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DOMAIN = 1 + os.getpid() % 50  # Linux: ids <= 101 avoid the ephemeral port range
@@ -538,7 +538,7 @@ def test_pose_topic_and_stamped_commands(ros, model_stem):
 
 def test_missing_model_exits_nonzero_with_one_line():
     env = {**os.environ, "ROS_DOMAIN_ID": str(DOMAIN)}
-    proc = subprocess.run([sys.executable, "-m", "hjrno_ros.ros.main", "--ros-args", "-p",
+    proc = subprocess.run([sys.executable, "-m", "hjrno_ros.ros.brt_node.main", "--ros-args", "-p",
                            "model_path:=/nonexistent"], capture_output=True, text=True, timeout=60, env=env)
     lines = [line for line in (proc.stdout + proc.stderr).splitlines() if line.strip()]
     assert proc.returncode == 1
@@ -549,7 +549,7 @@ def test_bundled_models_resolve_by_name():
     """model_path may name a bundled model ('' is ``default``): ``paper_cnn`` loads with each member in its two
     frames and the ε calibrated that way, ``v5`` is the same weights with one frame per member and its own ε; an
     unknown name is one clear error."""
-    from hjrno_ros.ros.model_files import resolve_model
+    from hjrno_ros.ros.brt_node.value_sources import resolve_model
 
     assert resolve_model("") == ROOT / "models" / "default"
     stem = resolve_model("paper_cnn")
@@ -571,8 +571,8 @@ def test_heading_across_pi_reads_the_stencil_not_its_clamped_edge():
     −π + 0.05 (the same heading turned 0.1 rad on): the lookup must use π + 0.05, inside the stencil,
     not −π + 0.05, which the table would clamp to its lower edge (a heading 0.3 rad off)."""
     from hjrno_ros.learning.value_function import LearnedValueFunction
-    from hjrno_ros.ros.inputs import RobotState
-    from hjrno_ros.ros.value_worker import table_state
+    from hjrno_ros.ros.brt_node.inputs import RobotState
+    from hjrno_ros.ros.brt_node.value_worker import table_state
 
     vf = LearnedValueFunction(ROOT / "models" / "paper_cnn", device="cpu")
     center, theta = (0.0, 0.0), math.pi - 0.05
@@ -608,7 +608,7 @@ def test_slice_stencil_holds_every_speed_and_heading_reached_before_the_next_tab
 def test_config_yaml_lists_every_parameter_with_its_default():
     import yaml
 
-    from hjrno_ros.ros.parameters import PARAMETERS
+    from hjrno_ros.ros.brt_node.parameters import PARAMETERS
 
     params = yaml.safe_load((ROOT / "config" / "brt_node.yaml").read_text())["brt_node"]["ros__parameters"]
     same = lambda a, b: a == b or (isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b))  # noqa: E731
@@ -713,7 +713,7 @@ def test_node_process_runs_without_jax_takes_integer_floats_and_stops_cleanly(mo
 
 def test_docs_parameter_table_is_current():
     """docs/node.md's parameter table is generated from the node's declarations."""
-    from hjrno_ros.ros.parameters import markdown_table
+    from hjrno_ros.ros.brt_node.parameters import markdown_table
 
     assert markdown_table() in (ROOT / "docs" / "node.md").read_text()
 
@@ -823,7 +823,7 @@ def test_interrupt_at_any_moment_of_start_up_exits_cleanly(model_stem):
     (site, .pth files) is Python's, not the node's."""
     env = {**os.environ, "ROS_DOMAIN_ID": str(DOMAIN + 30), "PYTHONUNBUFFERED": "1"}
     for delay in (0.0, 0.3, 0.8, 1.5, 2.5):
-        proc = subprocess.Popen([sys.executable, "-m", "hjrno_ros.ros.main", "--ros-args", "-p",
+        proc = subprocess.Popen([sys.executable, "-m", "hjrno_ros.ros.brt_node.main", "--ros-args", "-p",
                                  f"model_path:={model_stem}", "-p", "robot_model:=car"], env=env,
                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         maps = Path(f"/proc/{proc.pid}/maps")

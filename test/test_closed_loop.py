@@ -18,10 +18,9 @@ from hjrno_ros.core.model_card import ModelCard
 from hjrno_ros.core.safety_filter import MODES, FilterSettings, filter_batch, filter_command, minimal_change
 from hjrno_ros.core.stop_zone import StopZoneSettings, stop_zone_filter
 from hjrno_ros.core.value_table import ValueTable
-from hjrno_ros.datasets import held_out
-from hjrno_ros.learning import calibration, checkpoint, evaluation
+from hjrno_ros.learning import checkpoint
 from hjrno_ros.learning.operators.average import SymmetryAverage
-from hjrno_ros.studies import closed_loop
+from hjrno_ros.studies import calibration, closed_loop, evaluation, held_out
 from hjrno_ros.studies.closed_loop import EpisodeSettings, World
 from hjrno_ros.truth import problems
 from hjrno_ros.truth.solver import solve
@@ -191,11 +190,11 @@ def test_calibrate_records_symmetry_averaging_in_the_card(trained, tmp_path):
 def test_calibrate_records_member_frames_in_the_card(trained, tmp_path):
     """--member-frames: each ensemble member predicts in its listed D4 frames; calibrated that way and
     recorded with ε, so later loads predict as ε was measured; 'none' clears; a malformed list is refused."""
-    from hjrno_ros.learning import model_ensemble
+    from hjrno_ros.learning import combine
 
     _, stem = trained
     ens = tmp_path / "ens"
-    model_ensemble.combine([str(stem), str(stem)], ens, "test")  # identical members: frames alone differ
+    combine.combine([str(stem), str(stem)], ens, "test")  # identical members: frames alone differ
     folders = checkpoint.load_card(ens)["dataset"]["folders"]
     solved = held_out.load(folders, "all")
     plain, framed = (held_out.predict(ens, solved, frames=f) for f in ([], [[0], [4]]))
@@ -231,7 +230,7 @@ def test_held_out_halves_and_unconverged_worlds(ci_data, trained, tmp_path):
     _, stem = trained
 
     from hjrno_ros.cli import _data_folders
-    from hjrno_ros.datasets import held_out
+    from hjrno_ros.studies import held_out
 
     full = tmp_path / "full"
     shutil.copytree(ci_data, full)

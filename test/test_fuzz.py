@@ -7,7 +7,7 @@ Two parts:
   validation and the model card.  Every test draws a few hundred to a few thousand cases from a fixed seed;
   a failure prints the case.
 * a bounded DDS fuzz: the node in its own process on a private ROS domain, driven for ``DDS_SECONDS`` by
-  :class:`hjrno_ros.ros.fuzz_driver.FuzzDriver` with a random mix of valid and hostile maps, odometry,
+  :class:`hjrno_ros.ros.harness.fuzz_driver.FuzzDriver` with a random mix of valid and hostile maps, odometry,
   poses, commands and parameter sets (``hjrno bench fuzz`` runs the same driver for minutes).
 """
 
@@ -126,7 +126,7 @@ def test_parse_map_returns_map_data_or_a_one_line_rejection():
     pytest.importorskip("rclpy")
     from nav_msgs.msg import OccupancyGrid
 
-    from hjrno_ros.ros.inputs import MAP_YAW_TOLERANCE, MapData, MapRejected, parse_map
+    from hjrno_ros.ros.brt_node.inputs import MAP_YAW_TOLERANCE, MapData, MapRejected, parse_map
 
     rng = rng_for("parse_map")
     accepted = 0
@@ -256,8 +256,8 @@ def test_odometry_and_poses_accept_exactly_the_finite_planar_ones():
     from geometry_msgs.msg import PoseWithCovarianceStamped
     from nav_msgs.msg import Odometry
 
-    from hjrno_ros.ros.inputs import StateInput
-    from hjrno_ros.ros.messages import PLANAR_TILT
+    from hjrno_ros.ros.brt_node.inputs import StateInput
+    from hjrno_ros.ros.brt_node.messages import PLANAR_TILT
 
     rng = rng_for("state")
     states = [StateInput("odom", ""), StateInput("odom", "amcl_pose")]
@@ -472,13 +472,13 @@ def test_within_limits_nominal_far_from_obstacles_passes_bit_for_bit():
 
 # ------------------------------------------------------------------------------------------ parameters
 def _map_kinds() -> tuple[str, ...]:
-    from hjrno_ros.ros import parameters
+    from hjrno_ros.ros.brt_node import parameters
 
     return tuple(getattr(parameters, "MAP_KINDS", ()))
 
 
 def _robot_models() -> tuple[str, ...]:
-    from hjrno_ros.ros import parameters
+    from hjrno_ros.ros.brt_node import parameters
 
     return tuple(parameters.ROBOT_MODEL_NAMES)
 
@@ -548,7 +548,7 @@ def test_parameters_never_raise_and_reject_with_one_line_naming_the_parameter():
     odd strings) never raise; a set with one unusable value is rejected with one line naming that parameter, and
     a usable one is accepted with floats as floats."""
     pytest.importorskip("rclpy")
-    from hjrno_ros.ros import parameters
+    from hjrno_ros.ros.brt_node import parameters
 
     rng = rng_for("parameters")
     names = list(parameters.PARAMETERS)
@@ -659,7 +659,7 @@ def test_dds_fuzz_node_survives_and_never_publishes_beyond_the_limits():
     command it publishes is finite, planar and within the limits of the odometry it was last sent, and SIGINT
     ends it with 0 and no traceback."""
     pytest.importorskip("rclpy")
-    from hjrno_ros.ros.fuzz_driver import fuzz_drive
+    from hjrno_ros.ros.harness.fuzz_driver import fuzz_drive
     from hjrno_ros.tools.node_process import brt_node_process
 
     domain = 1 + (os.getpid() + 60) % 100

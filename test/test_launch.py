@@ -17,7 +17,7 @@ import yaml
 
 pytest.importorskip("rclpy")
 
-from hjrno_ros.ros.parameters import PARAMETERS  # noqa: E402
+from hjrno_ros.ros.brt_node.parameters import PARAMETERS  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 LAUNCH = ROOT / "launch" / "brt_node.launch.py"
@@ -77,8 +77,9 @@ def test_launch_file_starts_the_packages_brt_node_inactive(tree):
     brt = nodes["brt_node"]
     assert brt["package"] == "hjrno_ros" and brt["executable"] == "brt_node"
     setup = ast.parse((ROOT / "setup.py").read_text())
-    assert any(isinstance(n, ast.Constant) and n.value == "brt_node = hjrno_ros.ros.main:main" for n in ast.walk(setup))
-    from hjrno_ros.ros.node import NODE_NAME
+    entry = "brt_node = hjrno_ros.ros.brt_node.main:main"
+    assert any(isinstance(n, ast.Constant) and n.value == entry for n in ast.walk(setup))
+    from hjrno_ros.ros.brt_node.node import NODE_NAME
 
     assert brt["name"] == NODE_NAME
     params_file, overrides = brt["parameters"]

@@ -19,8 +19,10 @@ import numpy as np
 import pytest
 from conftest import wait_for
 
+from hjrno_ros.core import map_tiling
 from hjrno_ros.learning.value_function import LearnedValueFunction
-from hjrno_ros.truth import refinement as mr
+from hjrno_ros.ros.brt_node import refinement_process as mr
+from hjrno_ros.truth import map_refinement
 from hjrno_ros.truth.systems import DynamicDubinsCar
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -40,21 +42,21 @@ def disk_v0(grid, centre=(1.0, 0.0), radius=1.5) -> np.ndarray:
 @pytest.fixture(scope="module")
 def one_window(vf):
     """A 10 m map (one window) with a disk: grid, V0, the operator's warm start."""
-    grid = mr.map_grid(vf.grid, (-5.0, -5.0), (5.0, 5.0))
+    grid = map_tiling.map_grid(vf.grid, (-5.0, -5.0), (5.0, 5.0))
     v0 = disk_v0(grid)
-    return grid, v0, mr.warm_start(vf, v0, grid)
+    return grid, v0, map_refinement.warm_start(vf, v0, grid)
 
 
 def test_map_grid_covers_the_map_and_window_nodes_are_grid_nodes(vf):
-    grid = mr.map_grid(vf.grid, (-3.0, 1.0), (15.2, 12.0))
+    grid = map_tiling.map_grid(vf.grid, (-3.0, 1.0), (15.2, 12.0))
     h = vf.grid.spacings[:2]
     assert np.allclose(grid.spacings[:2], h) and grid.shape[2:] == vf.grid.shape[2:]
     assert grid.lo[0] <= -3.0 and grid.hi[0] >= 15.2 and grid.lo[1] <= 1.0 and grid.hi[1] >= 12.0
     assert grid.hi[0] - grid.lo[0] < 15.2 + 3.0 + h[0] + 1e-9  # grown by less than one step
-    assert mr.map_grid(vf.grid, (-5.0, -5.0), (5.0, 5.0)) == vf.grid  # a window-sized map is the model's grid
+    assert map_tiling.map_grid(vf.grid, (-5.0, -5.0), (5.0, 5.0)) == vf.grid  # a window-sized map is the model's grid
     for axis in (0, 1):
         n, w = grid.shape[axis], vf.shape[axis]
-        starts = mr.window_starts(n, w)
+        starts = map_tiling.window_starts(n, w)
         assert starts[0] == 0 and starts[-1] == n - w and np.all(np.diff(starts) <= w // 2)
         for i in starts:
             centre = grid.lo[axis] + (i + (w - 1) / 2) * h[axis]
@@ -71,10 +73,10 @@ def test_warm_start_of_one_window_is_the_operator_at_every_v_theta_node(vf, one_
 
 
 def test_warm_start_takes_each_node_from_the_window_with_the_nearest_centre(vf):
-    grid = mr.map_grid(vf.grid, (-5.0, -5.0), (12.0, 5.0))  # 54 x 32 nodes: windows at x nodes 0, 16, 22
+    grid = map_tiling.map_grid(vf.grid, (-5.0, -5.0), (12.0, 5.0))  # 54 x 32 nodes: windows at x nodes 0, 16, 22
     v0 = disk_v0(grid, centre=(4.0, 1.0))
-    w = mr.warm_start(vf, v0, grid)
-    starts = mr.window_starts(grid.shape[0], 32)
+    w = map_refinement.warm_start(vf, v0, grid)
+    starts = map_tiling.window_starts(grid.shape[0], 32)
     assert starts == [0, 16, 22]
     iv, it = 4, 5
     for ix in (3, 20, 27, 40, 53):  # window centres at nodes 15.5, 31.5, 37.5: owners 0, 0, 1, 2, 2
@@ -82,13 +84,13 @@ def test_warm_start_takes_each_node_from_the_window_with_the_nearest_centre(vf):
         expect = vf.predict(v0[owner:owner + 32], [grid.axis(2)[iv]], [grid.axis(3)[it]])[0]
         assert np.allclose(w[ix, :, iv, it], expect[ix - owner], atol=1e-5), ix  # batch size: float rounding
     with pytest.raises(ValueError, match="does not match"):
-        mr.warm_start(vf, v0[:-1], grid)
+        map_refinement.warm_start(vf, v0[:-1], grid)
 
 
 def test_refine_only_lowers_the_table_and_stops_at_the_horizon(vf, one_window):
     grid, v0, w = one_window
-    target = mr.broadcast_target(v0, grid)
-    stages = list(mr.refine(DynamicDubinsCar(vf.params), grid, target, w, horizon=2.0, stage=1.0))
+    target = map_refinement.broadcast_target(v0, grid)
+    stages = list(map_refinement.refine(DynamicDubinsCar(vf.params), grid, target, w, horizon=2.0, stage=1.0))
     assert [round(s[0], 9) for s in stages] == [1.0, 2.0] or stages[-1][2]  # 2 stages unless settled early
     previous = np.minimum(w, v0[:, :, None, None])
     for _, table, _ in stages:
@@ -97,7 +99,7 @@ def test_refine_only_lowers_the_table_and_stops_at_the_horizon(vf, one_window):
         previous = table
     assert float(np.abs(stages[-1][1] - np.minimum(w, v0[:, :, None, None])).max()) > 1e-3  # it did work
     with pytest.raises(ValueError, match="horizon > 0"):
-        next(mr.refine(DynamicDubinsCar(vf.params), grid, target, w, horizon=0.0, stage=1.0))
+        next(map_refinement.refine(DynamicDubinsCar(vf.params), grid, target, w, horizon=0.0, stage=1.0))
 
 
 def wait_stage(r: mr.BackgroundRefinement, timeout: float = 240.0) -> mr.Stage | None:
@@ -122,8 +124,9 @@ def test_child_cpus_leaves_the_node_a_core():
 
 def test_background_process_writes_the_in_process_result(vf, one_window):
     grid, v0, w = one_window
-    target = mr.broadcast_target(v0, grid)
-    (_, expect, settled), = list(mr.refine(DynamicDubinsCar(vf.params), grid, target, w, horizon=1.0, stage=1.0))
+    target = map_refinement.broadcast_target(v0, grid)
+    stages = map_refinement.refine(DynamicDubinsCar(vf.params), grid, target, w, horizon=1.0, stage=1.0)
+    (_, expect, settled), = list(stages)
     r = mr.BackgroundRefinement()
     try:
         r.start(7, v0, grid, str(MODEL), horizon=1.0, stage=1.0)
@@ -149,7 +152,8 @@ def test_a_failing_child_reports_one_line(tmp_path, one_window):
     finally:
         r.stop()
     (tmp_path / mr.REQUEST).write_bytes(b"\x00" * 40)  # a truncated request
-    out = subprocess.run([sys.executable, "-m", "hjrno_ros.truth.refinement", str(tmp_path)], capture_output=True,
+    child = [sys.executable, "-m", "hjrno_ros.ros.brt_node.refinement_process", str(tmp_path)]
+    out = subprocess.run(child, capture_output=True,
                          text=True)
     assert out.returncode == 1 and "not a refinement file" in out.stderr and len(out.stderr.splitlines()) == 1
     assert not (tmp_path / mr.RESULT).exists()
@@ -181,7 +185,7 @@ def test_the_child_dies_with_its_node_even_after_kill_9(tmp_path, one_window):
     np.save(tmp_path / "v0.npy", v0)
     script = (
         "import json, sys, time\nimport numpy as np\n"
-        "from hjrno_ros.core.grids import GridSpec\nfrom hjrno_ros.truth import refinement as mr\n"
+        "from hjrno_ros.core.grids import GridSpec\nfrom hjrno_ros.ros.brt_node import refinement_process as mr\n"
         f"grid = GridSpec.from_dict(json.loads({json.dumps(json.dumps(grid.as_dict()))!s}))\n"
         f"r = mr.BackgroundRefinement(1)\nr.start(1, np.load({str(tmp_path / 'v0.npy')!r}), grid, "
         f"{str(MODEL)!r}, horizon=600.0, stage=600.0)\n"

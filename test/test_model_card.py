@@ -68,7 +68,7 @@ def test_the_bundled_cards_load(name):
 def test_reading_a_card_imports_no_torch_and_held_out_no_calibration():
     code = ("import sys; from hjrno_ros.core.model_card import ModelCard; "
             f"ModelCard.load({str(ROOT / 'models' / 'paper_cnn')!r}); assert 'torch' not in sys.modules; "
-            "import hjrno_ros.datasets.held_out; assert 'hjrno_ros.learning.calibration' not in sys.modules; "
+            "import hjrno_ros.studies.held_out; assert 'hjrno_ros.studies.calibration' not in sys.modules; "
             "import hjrno_ros.learning.operators.ensemble as e; assert sorted(e.MODELS) == ['cnn', 'fno', 'tno']")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
     assert run.returncode == 0, run.stderr

@@ -13,9 +13,9 @@ pytest.importorskip("rclpy")
 
 from hjrno_ros.core import geometry, safety_filter  # noqa: E402
 from hjrno_ros.core.dynamics import CarParams  # noqa: E402
-from hjrno_ros.ros import status  # noqa: E402
-from hjrno_ros.ros.inputs import MapRejected, parse_map  # noqa: E402
-from hjrno_ros.ros.messages import occupancy_message, planar_yaw  # noqa: E402
+from hjrno_ros.ros.brt_node import status  # noqa: E402
+from hjrno_ros.ros.brt_node.inputs import MapRejected, parse_map  # noqa: E402
+from hjrno_ros.ros.brt_node.messages import occupancy_message, planar_yaw  # noqa: E402
 
 
 def quat(x: float, y: float, z: float, w: float) -> types.SimpleNamespace:

@@ -22,8 +22,8 @@ from test_brt_node import DOMAIN, ROOT, wait_for  # noqa: E402
 
 from hjrno_ros.core import safety_filter  # noqa: E402
 from hjrno_ros.core.model_card import ModelCard  # noqa: E402
-from hjrno_ros.ros.node import BrtNode  # noqa: E402
-from hjrno_ros.ros.scene_driver import SceneBase  # noqa: E402
+from hjrno_ros.ros.brt_node.node import BrtNode  # noqa: E402
+from hjrno_ros.ros.harness.scene_driver import SceneBase  # noqa: E402
 from hjrno_ros.studies import product_scenes  # noqa: E402
 
 CAR, CAR_SCENES = product_scenes.ROBOTS["car"]  # a base that reverses up to 0.5 m/s
@@ -80,8 +80,8 @@ def test_a_solver_card_waits_for_a_settled_table(solver_card):
     under-approximates the tube), and a solver card without refine_horizon is refused with one line."""
     card = ModelCard.load(solver_card)
     assert card.kind == "solver" and card.dynamics == CAR
-    from hjrno_ros.ros.model_files import load_model
-    from hjrno_ros.ros.parameters import PARAMETERS
+    from hjrno_ros.ros.brt_node.parameters import PARAMETERS
+    from hjrno_ros.ros.brt_node.value_sources import load_model
 
     cfg = {name: spec.default for name, spec in PARAMETERS.items()}
     with pytest.raises(ValueError, match="set robot_model: car"):  # the default robot_model is diff_drive
@@ -101,7 +101,7 @@ def test_every_value_source_has_the_members_the_node_reads(solver_card):
     from hjrno_ros.core.scaled_values import ScaledValueFunction, covered_scaling
     from hjrno_ros.core.value_source import ValueSource
     from hjrno_ros.learning.value_function import LearnedValueFunction
-    from hjrno_ros.ros.model_files import SolverGrid
+    from hjrno_ros.ros.brt_node.value_sources import SolverGrid
 
     learned = LearnedValueFunction(ROOT / "models" / "default", device="cpu")
     small = dataclasses.replace(learned.params, v_max=0.5, v_min=-0.5, omega_max=1.0, a_max=0.5)

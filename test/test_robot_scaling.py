@@ -18,8 +18,8 @@ from hjrno_ros.core.model_card import ModelCard  # noqa: E402
 from hjrno_ros.core.safety_filter import sampling_margin  # noqa: E402
 from hjrno_ros.core.scaled_values import ScaledValueFunction, covered_scaling  # noqa: E402
 from hjrno_ros.core.similarity import Dimensionless  # noqa: E402
-from hjrno_ros.ros import parameters  # noqa: E402
-from hjrno_ros.ros.robot import robot_params  # noqa: E402
+from hjrno_ros.ros.brt_node import parameters  # noqa: E402
+from hjrno_ros.ros.brt_node.robot import robot_params  # noqa: E402
 
 S = 0.25  # the small robot's length scale against the card's car: κ_max 4 /m, v_max 0.5 m/s, a_max 1 m/s²
 SMALL = {"kappa_max": 4.0, "v_max": 0.5, "a_max": 1.0}

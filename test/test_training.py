@@ -13,7 +13,7 @@ from scipy.interpolate import RegularGridInterpolator
 from hjrno_ros.core.geometry import Polygon
 from hjrno_ros.core.grids import car_grid
 from hjrno_ros.datasets import dataset
-from hjrno_ros.learning import checkpoint, evaluation
+from hjrno_ros.learning import checkpoint
 from hjrno_ros.learning.operators.average import SymmetryAverage
 from hjrno_ros.learning.slices import (
     SliceSet,
@@ -26,6 +26,7 @@ from hjrno_ros.learning.slices import (
 )
 from hjrno_ros.learning.training import TrainConfig, TrainingDiverged, train
 from hjrno_ros.learning.value_function import LearnedValueFunction
+from hjrno_ros.studies import evaluation
 from hjrno_ros.truth.solver import solve
 from hjrno_ros.truth.systems import DynamicDubinsCar
 
@@ -308,7 +309,7 @@ def test_learned_value_function_gives_value_and_gradient(trained):
 def test_inflation_at_the_output_runs_the_model_on_l(trained, ci_data):
     """V∞[l − r] = V∞[l] − r (test_dataset checks it on real solves): with ``inflation_at="output"`` the
     model reads l and r comes off its output; by default ("input", as brt_node) it reads l − r."""
-    from hjrno_ros.datasets import held_out
+    from hjrno_ros.studies import held_out
 
     _, out = trained
     r = np.float32(0.23)
@@ -364,14 +365,14 @@ def test_parametric_diagonal_figure(tmp_path):
 def test_ensemble_predicts_the_members_mean_and_refuses_unlike_members(trained, ci_data, tmp_path):
     """``hjrno ensemble``: one checkpoint whose output is the mean of its members' (with ``--pessimism`` k,
     mean − k·std), usable like any model."""
-    from hjrno_ros.learning import model_ensemble
+    from hjrno_ros.learning import combine
 
     _, fno = trained
     cnn = tmp_path / "cnn"
     train(TrainConfig(data=str(ci_data), model="cnn", model_config={"channels": 4, "depth": 2}, epochs=1,
                       slices_per_epoch=64, batch=16, out=str(cnn)), progress=False, command="test")
     ens = tmp_path / "ens"
-    model_ensemble.combine([str(fno), str(cnn)], ens, "test")
+    combine.combine([str(fno), str(cnn)], ens, "test")
     model, card = checkpoint.load_model(ens)
     (a, _), (b, _) = checkpoint.load_model(fno), checkpoint.load_model(cnn)
     x = torch.randn(2, 4, 20, 20)
@@ -407,17 +408,17 @@ def test_ensemble_predicts_the_members_mean_and_refuses_unlike_members(trained, 
     checkpoint.update_card(ens, {"member_frames": None})
 
     with pytest.raises(ValueError, match="at least 2"):
-        model_ensemble.combine([str(fno)], tmp_path / "one", "test")
+        combine.combine([str(fno)], tmp_path / "one", "test")
     with pytest.raises(ValueError, match="cannot itself be an ensemble"):
-        model_ensemble.combine([str(ens), str(fno)], tmp_path / "nested", "test")
+        combine.combine([str(ens), str(fno)], tmp_path / "nested", "test")
     (tmp_path / "other").mkdir()
     other = copy_model(cnn, tmp_path / "other")
     card_other = checkpoint.load_card(other)
     checkpoint.update_card(other, {"dataset": {**card_other["dataset"], "digests": ["0000000000000000"]}})
     with pytest.raises(ValueError, match="different datasets"):
-        model_ensemble.combine([str(fno), str(other)], tmp_path / "bad", "test")
+        combine.combine([str(fno), str(other)], tmp_path / "bad", "test")
     checkpoint.update_card(other, {"dataset": card_other["dataset"],
                                    "inputs": {**card_other["inputs"], "value_scale": 123.0}})
     with pytest.raises(ValueError, match="'inputs'"):
-        model_ensemble.combine([str(fno), str(other)], tmp_path / "bad", "test")
+        combine.combine([str(fno), str(other)], tmp_path / "bad", "test")
     assert not checkpoint.paths(tmp_path / "bad")[0].exists()  # nothing written for a refused ensemble

@@ -26,9 +26,8 @@ from hjrno_ros.core.safety_filter import MODES, FilterSettings, filter_batch, sa
 from hjrno_ros.core.similarity import Dimensionless, Scaling
 from hjrno_ros.core.stop_zone import StopZoneSettings, stop_zone_filter
 from hjrno_ros.core.value_table import ReversingTable, ValueTable
-from hjrno_ros.datasets import held_out
-from hjrno_ros.learning.calibration import DEFAULT_MARGIN
-from hjrno_ros.studies import closed_loop
+from hjrno_ros.studies import closed_loop, held_out
+from hjrno_ros.studies.calibration import DEFAULT_MARGIN
 from hjrno_ros.studies.closed_loop import EpisodeSettings, World
 
 TRUTH = "ground_truth"

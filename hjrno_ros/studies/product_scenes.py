@@ -7,7 +7,7 @@ escapes backwards or by turning from rest inside the margin, and accelerates fro
 Each scene is a start state (x, y, v, θ), a constant nominal command and a duration; :func:`judge` says
 what must hold.
 The scenes run offline against a table (:func:`simulate`) and over DDS with brt_node
-(:mod:`hjrno_ros.ros.scene_driver`).
+(:mod:`hjrno_ros.ros.harness.scene_driver`).
 """
 
 from __future__ import annotations
@@ -156,17 +156,18 @@ def solve_scene_table(params: RobotParams, cell: float = 0.2, speeds: int = 7, h
                       horizon: float = 60.0) -> ValueTable:
     """The ground truth for the scenes' map: the solver from the target (obstacles grown by h/√2 of the grid, as
     the node does), until it settles or ``horizon`` simulated s."""
+    from hjrno_ros.core.map_tiling import map_grid
     from hjrno_ros.core.model_card import ModelCard
-    from hjrno_ros.truth import refinement
+    from hjrno_ros.truth.map_refinement import broadcast_target, refine
     from hjrno_ros.truth.systems import robot_system
 
     card = ModelCard.from_dict(ModelCard.solver(params, cell, speeds, headings))
     far = (ORIGIN[0] + SIZE[0] * RESOLUTION, ORIGIN[1] + SIZE[1] * RESOLUTION)
-    grid = refinement.map_grid(card.grid, ORIGIN, far)
+    grid = map_grid(card.grid, ORIGIN, far)
     xy = np.stack(np.meshgrid(grid.axis(0), grid.axis(1), indexing="ij"), -1)
     v0 = (clearance(xy) - grid.half_cell_diagonal).astype(np.float32)
-    target = refinement.broadcast_target(v0, grid)
-    *_, (_, values, _) = refinement.refine(robot_system(params), grid, target, target, horizon, horizon)
+    target = broadcast_target(v0, grid)
+    *_, (_, values, _) = refine(robot_system(params), grid, target, target, horizon, horizon)
     return ValueTable(grid, values)
 
 

@@ -70,8 +70,8 @@ def unfiltered(seconds: float, seed: int = EPISODE_SEED) -> nav.EpisodeResult:
 def run(out: Path, seconds: float = 60.0, seed: int = EPISODE_SEED, model: str | None = None,
         use_filter: bool = True, gif: bool = True) -> int:
     """Run the demo; print and write the summary and figures; 1 on a collision of the robot shown, else 0."""
+    from hjrno_ros.ros.brt_node.value_sources import resolve_model
     from hjrno_ros.ros.harness.irsim_base import IrSimBase, drive
-    from hjrno_ros.ros.model_files import resolve_model
     from hjrno_ros.studies.plotting import demo_animation
     from hjrno_ros.tools.nav_bench import node_params, world_for
     from hjrno_ros.tools.node_process import brt_node_process, free_domain

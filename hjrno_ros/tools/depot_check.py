@@ -3,7 +3,7 @@
 The map is ``../shared/maps/depot.{pgm,yaml}`` beside the checkout (Nav2's nav2_bringup depot map,
 Apache-2.0), loaded as map_server does (:mod:`hjrno_ros.core.map_file`).  brt_node runs in its own
 process (the bundled model and its calibrated ε unless told otherwise) and serves every episode;
-:mod:`hjrno_ros.ros.episode_driver` resets a simulated point robot between episodes.  Starts are drawn
+:mod:`hjrno_ros.ros.harness.episode_driver` resets a simulated point robot between episodes.  Starts are drawn
 in the free space at least ``CLEARANCE`` from obstacles (the largest connected part of it), at rest,
 and the drivers take turns: ``straight`` (v_max, headed for an obstacle cell within 5 m), ``edge``
 (v_max, pointed at the nearest map edge: an attempt to drive off the map), ``goal`` (the demo's
@@ -35,7 +35,7 @@ from hjrno_ros.core.map_file import MapFile, load_map
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_MAP = ROOT.parent / "shared" / "maps" / "depot.yaml"
-DRIVERS = ("straight", "edge", "goal", "goal_off_map")  # hjrno_ros.ros.episode_driver.DRIVERS (rclpy-free here)
+DRIVERS = ("straight", "edge", "goal", "goal_off_map")  # hjrno_ros.ros.harness.episode_driver.DRIVERS (rclpy-free here)
 CLEARANCE = 0.5  # m: starts and goals at least this far from obstacles and the map's edge
 MIN_GOAL_DISTANCE = 3.0  # m
 GOALS = 4  # goals per goal episode, visited in turn
@@ -142,7 +142,7 @@ def draw_episodes(world: DepotWorld, n: int, seed: int = 0) -> list[dict]:
 
 
 def episode_row(i: int, episode: dict, log, world: DepotWorld) -> dict:
-    """One episode's numbers from its log (see :class:`hjrno_ros.ros.episode_driver.EpisodeLog`)."""
+    """One episode's numbers from its log (see :class:`hjrno_ros.ros.harness.episode_driver.EpisodeLog`)."""
     states = np.array([s[1:5] for s in log.states]) if log.states else np.zeros((0, 4))
     clear = world.clearance(states[:, :2]) if len(states) else np.array([world.clearance(
         np.asarray(episode["start"][:2])[None])[0]])
@@ -207,8 +207,8 @@ def run(out: Path, episodes: int = 200, seconds: float = 12.0, seed: int = 0, mo
         map_path: str | Path | None = None, quiet: bool = False) -> int:
     """Run the check; print and write depot.md / depot.json; 1 if any episode collided or left the map."""
     from hjrno_ros.core.model_card import ModelCard
-    from hjrno_ros.ros.episode_driver import run_episodes  # rclpy only when the check runs
-    from hjrno_ros.ros.model_files import resolve_model
+    from hjrno_ros.ros.brt_node.value_sources import resolve_model
+    from hjrno_ros.ros.harness.episode_driver import run_episodes  # rclpy only when the check runs
     from hjrno_ros.tools.node_process import brt_node_process, free_domain
 
     if episodes < 1 or not seconds > 0:

@@ -1,7 +1,7 @@
 """``hjrno bench fuzz``: brt_node under a long DDS fuzz, and what map size costs.
 
-The node runs in its own process (``python -m hjrno_ros.ros.main``, the bundled model unless one is given,
-``pose_topic:=amcl_pose``) on a private ROS domain; :func:`hjrno_ros.ros.fuzz_driver.fuzz_drive` (the driver of
+The node runs in its own process (``python -m hjrno_ros.ros.brt_node.main``, the bundled model unless one is given,
+``pose_topic:=amcl_pose``) on a private ROS domain; :func:`hjrno_ros.ros.harness.fuzz_driver.fuzz_drive` (the driver of
 test/test_fuzz.py) sends it a random mix of valid and hostile maps, odometry, poses, commands and parameter sets
 for ``seconds`` (default 180) and checks every command it publishes.  Reported: messages by class; crashes (the
 process died, exited non-zero on SIGINT, or printed a traceback); hangs (status gaps over 1 s); non-finite
@@ -79,7 +79,7 @@ def _rss_slope(samples: list[tuple[float, float]]) -> float | None:
 
 def run(out: Path, seconds: float = SOAK_S, model: Path | None = None, seed: int = 40, name: str = "fuzz") -> int:
     """Measure the map costs, fuzz a brt_node process for ``seconds``; print a table, write ``name``.md/json."""
-    from hjrno_ros.ros.fuzz_driver import fuzz_drive  # rclpy only when the benchmark runs
+    from hjrno_ros.ros.harness.fuzz_driver import fuzz_drive  # rclpy only when the benchmark runs
     from hjrno_ros.tools.benchmarks import machine
 
     if not seconds > 0:
@@ -140,7 +140,8 @@ def run(out: Path, seconds: float = SOAK_S, model: Path | None = None, seed: int
     note = (f"`hjrno bench fuzz` on {machine()}, {time.strftime('%Y-%m-%d')}: brt_node in its own process "
             f"({model or 'models/default'}, pose_topic amcl_pose) fuzzed over Fast DDS for {row['fuzz_s']} s "
             f"(seed {seed}) with a random mix of valid and hostile maps, odometry, poses, Twist commands and "
-            "parameter sets (hjrno_ros/ros/fuzz_driver.py). crashes: died, non-zero exit on SIGINT or a traceback; "
+            "parameter sets (hjrno_ros/ros/harness/fuzz_driver.py). crashes: died, non-zero exit on SIGINT or a "
+            "traceback; "
             f"hangs: status gaps over {HANG_S:g} s; beyond limits: linear outside [v_min, v_max] or |angular| > "
             "kappa_max max(|v|, |v'|) for the odometry speeds and control periods of the last 2 s; RSS: VmRSS "
             f"every {RSS_PERIOD_S:g} s after {RSS_WARMUP_S:g} s, least-squares slope. Targets: 0 crashes, hangs, "

@@ -1,8 +1,8 @@
 """``hjrno bench node``: brt_node under a realistic load over real DDS, against the design targets.
 
-The node runs in its own process (``python -m hjrno_ros.ros.main``, TwistStamped commands, the
+The node runs in its own process (``python -m hjrno_ros.ros.brt_node.main``, TwistStamped commands, the
 bundled model unless one is given) so its CPU time and peak RSS are its own.  A driver in this
-process (:class:`hjrno_ros.ros.bench_driver.BenchDriver`) publishes a
+process (:class:`hjrno_ros.ros.harness.bench_driver.BenchDriver`) publishes a
 20 m × 20 m map at 0.05 m (400 × 400 cells, transient local) with walls and boxes, odometry of a
 robot in free space at 50 Hz and nominal commands at 20 Hz, and republishes a changed map every
 second.  Measured:
@@ -78,7 +78,7 @@ def _percentile_ms(values: list[float], q: float) -> float | None:
 
 def run(out: Path, seconds: float = 30.0, model: Path | None = None) -> int:
     """Benchmark a brt_node process for ``seconds`` of driving; print a table, write node.md/node.json."""
-    from hjrno_ros.ros.bench_driver import bench_drive  # rclpy only when the benchmark runs
+    from hjrno_ros.ros.harness.bench_driver import bench_drive  # rclpy only when the benchmark runs
 
     if not seconds > 0:
         raise ValueError(f"seconds must be > 0, got {seconds}")

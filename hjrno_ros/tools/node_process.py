@@ -20,9 +20,9 @@ def free_domain() -> int:
 @contextlib.contextmanager
 def brt_node_process(domain: int, params: dict[str, object], model: str | Path | None = None
                      ) -> Iterator[tuple[subprocess.Popen, callable]]:
-    """Start ``python -m hjrno_ros.ros.main`` with ``-p name:=value`` parameters; yields (process, log_tail)
+    """Start ``python -m hjrno_ros.ros.brt_node.main`` with ``-p name:=value`` parameters; yields (process, log_tail)
     where ``log_tail()`` returns its last lines; SIGINT (then kill) on exit."""
-    cmd = [sys.executable, "-m", "hjrno_ros.ros.main", "--ros-args"]
+    cmd = [sys.executable, "-m", "hjrno_ros.ros.brt_node.main", "--ros-args"]
     for name, value in {**params, **({"model_path": str(model)} if model else {})}.items():
         cmd += ["-p", f"{name}:={str(value).lower() if isinstance(value, bool) else value}"]
     env = {**os.environ, "ROS_DOMAIN_ID": str(domain)}

@@ -21,8 +21,8 @@ from geometry_msgs.msg import TwistStamped
 from nav_msgs.msg import OccupancyGrid
 from rclpy.node import Node
 
-from hjrno_ros.ros.messages import occupancy_message, odometry_message
-from hjrno_ros.ros.spin import base_topics, drive_base
+from hjrno_ros.ros.brt_node.messages import occupancy_message, odometry_message
+from hjrno_ros.ros.harness.spin import base_topics, drive_base
 from hjrno_ros.studies.navigation import STOPPED_SPEED, STOPPED_TURN, EpisodeResult, GoalDriver, NavMap
 
 
@@ -108,7 +108,7 @@ class IrSimBase(Node):
         self.log.changed += self.running and self._changed
 
     def _on_grid(self, msg: OccupancyGrid) -> None:
-        from hjrno_ros.ros.messages import occupancy_array
+        from hjrno_ros.ros.brt_node.messages import occupancy_array
 
         origin = (msg.info.origin.position.x, msg.info.origin.position.y)
         self.log.grids.append((self.now(), origin, msg.info.resolution, occupancy_array(msg) >= 100))

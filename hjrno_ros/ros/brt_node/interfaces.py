@@ -14,8 +14,8 @@ from rclpy.qos import qos_profile_sensor_data
 from std_msgs.msg import Float32MultiArray, String
 from std_srvs.srv import SetBool
 
-from hjrno_ros.ros import status
-from hjrno_ros.ros.messages import LATCHED
+from hjrno_ros.ros.brt_node import status
+from hjrno_ros.ros.brt_node.messages import LATCHED
 
 
 class Interfaces:

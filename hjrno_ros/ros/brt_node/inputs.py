@@ -21,7 +21,7 @@ from nav_msgs.msg import OccupancyGrid, Odometry
 
 from hjrno_ros.core import geometry
 from hjrno_ros.core.grids import wrap_angle
-from hjrno_ros.ros.messages import finite, occupancy_array, planar_yaw
+from hjrno_ros.ros.brt_node.messages import finite, occupancy_array, planar_yaw
 
 MAP_YAW_TOLERANCE = 1e-3  # rad: only axis-aligned maps are supported
 Pose2 = tuple[float, float, float]  # (x, y, yaw)

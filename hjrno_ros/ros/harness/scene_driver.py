@@ -14,7 +14,7 @@ from nav_msgs.msg import OccupancyGrid, Odometry
 from rclpy.node import Node
 
 from hjrno_ros.core.dynamics import RobotParams
-from hjrno_ros.ros.messages import LATCHED, occupancy_message, odometry_message
+from hjrno_ros.ros.brt_node.messages import LATCHED, occupancy_message, odometry_message
 from hjrno_ros.studies import product_scenes
 from hjrno_ros.studies.closed_loop import base_step
 

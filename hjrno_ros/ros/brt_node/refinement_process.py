@@ -1,19 +1,10 @@
-"""The operator's value over a whole static map, refined by the HJ solver warm-started from it.
+"""The node's background refinement process: a nice-19 child that refines the map's value table
+(:mod:`hjrno_ros.truth.map_refinement`, JAX only in that child) and the files through which it talks to the node.
 
-The operator predicts V on a robot-centred window in milliseconds, but indoors its turn (the sign of
-∂V/∂θ near V = 0) disagrees with the truth's on ~12 % of states, and that turn is what makes its filter
-collide.  ``solve(..., initial=W)`` from the operator's prediction W corrects it in a fraction
-of a cold solve's time (docs/results.md, warm-start study, 16 indoor rooms: sign agreement 0.875 → 0.919 after
-16 simulated s, 8.7 s of wall time per 10 m room here against ~75 s cold; 0 and 0 collisions in 2002
-closed-loop episodes against the operator's 6 and 13).  For a map that does not change, that is worth
-doing once, in the background, while the operator's windows keep the filter running.
-
-* :func:`map_grid`: the (x, y, v, θ) grid over the map at the model's spacings.
-* :func:`warm_start`: the operator's prediction on that grid, stitched from windows: each x-y node takes
-  the window whose centre is nearest to it (windows overlap by half), at every (v, θ) node.
-* :func:`refine`: the warm-started solve in stages of simulated time, each stage's table yielded.
-* :func:`main`: the child process that :class:`BackgroundRefinement` (the node's) starts: it reads a
-  request file and writes each stage's table over the same output file, atomically.
+* :class:`BackgroundRefinement` (the node's side): at most one child at a time, on the cores of
+  :func:`child_cpus`, polled for each stage's table.
+* :func:`main`: the child: it reads a request file and writes each stage's table over the same output file,
+  atomically.
 Axis order everywhere: V[ix, iy, iv, iθ] (docs/design.md, "Conventions").
 """
 
@@ -21,14 +12,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import os
 import shutil
 import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -36,79 +25,9 @@ import numpy as np
 from hjrno_ros.core.atomic import atomic_write
 from hjrno_ros.core.grids import GridSpec
 
-SOLVER = {"accuracy": "high", "tolerance": 3e-3, "criterion": "band"}  # the indoor datasets' settings
 REQUEST, RESULT = "request.safetensors", "value.safetensors"
 CHILD_NICE = 19  # the solver process yields every core to the node
-MAX_STATES = 4_000_000  # (x, y, v, θ) nodes: ~170 × 170 x-y nodes of the default model (a 54 m square map)
 
-
-def map_grid(model_grid: GridSpec, lo: tuple[float, float], hi: tuple[float, float]) -> GridSpec:
-    """The model grid's (v, θ) axes and x-y spacing over the box [lo, hi] (grown to whole steps, centred,
-    at least one window): nodes of windows placed every half window coincide with this grid's nodes."""
-    h = model_grid.spacings[:2]
-    n = [max(model_grid.shape[i], math.ceil((hi[i] - lo[i]) / h[i] - 1e-4) + 1) for i in range(2)]  # float32 maps
-    c = [(lo[i] + hi[i]) / 2 for i in range(2)]
-    xy_lo = [c[i] - (n[i] - 1) * h[i] / 2 for i in range(2)]
-    xy_hi = [c[i] + (n[i] - 1) * h[i] / 2 for i in range(2)]
-    return GridSpec((*xy_lo, *model_grid.lo[2:]), (*xy_hi, *model_grid.hi[2:]), (*n, *model_grid.shape[2:]),
-                    model_grid.periodic)
-
-
-def window_starts(n: int, w: int) -> list[int]:
-    """First node of each window of ``w`` nodes along an axis of ``n`` (every w//2, the last flush)."""
-    return sorted({*range(0, n - w + 1, max(1, w // 2)), n - w})
-
-
-def owners(n: int, w: int, starts: list[int]) -> np.ndarray:
-    """Per node, the index into ``starts`` of the window whose centre is nearest."""
-    centres = np.asarray(starts) + (w - 1) / 2
-    return np.argmin(np.abs(np.arange(n)[:, None] - centres[None]), axis=1)
-
-
-def warm_start(vf, v0: np.ndarray, grid: GridSpec) -> np.ndarray:
-    """The operator's V on ``grid`` (Nx, Ny, Nv, Nθ) from V0 (Nx, Ny) on its x-y nodes."""
-    if v0.shape != grid.shape[:2]:
-        raise ValueError(f"V0 shape {v0.shape} does not match the grid's x-y shape {grid.shape[:2]}")
-    wx, wy = vf.shape
-    vv, tt = np.meshgrid(grid.axis(2), grid.axis(3), indexing="ij")
-    out = np.empty(grid.shape, np.float32)
-    sx, sy = window_starts(grid.shape[0], wx), window_starts(grid.shape[1], wy)
-    ox, oy = owners(grid.shape[0], wx, sx), owners(grid.shape[1], wy, sy)
-    for a, i in enumerate(sx):
-        for b, j in enumerate(sy):
-            slices = vf.predict(v0[i:i + wx, j:j + wy], vv.ravel(), tt.ravel())  # (Nv·Nθ, wx, wy)
-            table = np.moveaxis(slices.reshape(*vv.shape, wx, wy), (0, 1), (2, 3))
-            mx, my = np.flatnonzero(ox == a), np.flatnonzero(oy == b)
-            out[np.ix_(mx, my)] = table[np.ix_(mx - i, my - j)]
-    return out
-
-
-def broadcast_target(v0: np.ndarray, grid: GridSpec) -> np.ndarray:
-    """l(x, y, v, θ) = V0(x, y): the target of a map whose obstacles do not depend on the speed."""
-    return np.ascontiguousarray(np.broadcast_to(v0[:, :, None, None], grid.shape), np.float32)
-
-
-def refine(dynamics, grid: GridSpec, target: np.ndarray, initial: np.ndarray, horizon: float, stage: float
-           ) -> Iterator[tuple[float, np.ndarray, bool]]:
-    """(simulated s so far, table, settled) after each ``stage`` s of the tube of ``target`` l from
-    min(initial, l); stops at ``horizon`` or when the solver's tolerance says it settled."""
-    from hjrno_ros.truth.solver import solve  # JAX: only where a solve runs
-
-    if not (horizon > 0 and stage > 0):
-        raise ValueError(f"need horizon > 0 and stage > 0, got {horizon}, {stage}")
-    done, current = 0.0, initial
-    while done < horizon - 1e-9:
-        length = min(stage, horizon - done)
-        current, report = solve(dynamics, grid, target, initial=current, chunk=min(1.0, length),
-                                max_horizon=length, **SOLVER)
-        done += report.horizon
-        yield done, current, report.converged
-        if report.converged:
-            return
-
-
-# ---------------------------------------------------------------------------------------------
-# The background process.
 
 def write_request(path: Path, v0: np.ndarray, grid: GridSpec, model: str, horizon: float, stage: float) -> None:
     from safetensors.numpy import save_file
@@ -142,6 +61,7 @@ def run_request(workdir: Path) -> None:
 
     from hjrno_ros.core.model_card import ModelCard
     from hjrno_ros.learning.value_function import LearnedValueFunction
+    from hjrno_ros.truth.map_refinement import broadcast_target, refine, warm_start
     from hjrno_ros.truth.systems import robot_system
 
     grid, v0, meta = read_table(workdir / REQUEST)
@@ -206,8 +126,8 @@ class BackgroundRefinement:
         self._dir = Path(tempfile.mkdtemp(prefix=f"{WORKDIR_PREFIX}{os.getpid()}_"))
         write_request(self._dir / REQUEST, v0, grid, model, horizon, stage)
         self._log = open(self._dir / "log.txt", "w+")  # noqa: SIM115 - closed in stop()
-        self._proc = subprocess.Popen([sys.executable, "-m", "hjrno_ros.truth.refinement", str(self._dir)],
-                                      stdout=self._log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+        child = [sys.executable, "-m", "hjrno_ros.ros.brt_node.refinement_process", str(self._dir)]
+        self._proc = subprocess.Popen(child, stdout=self._log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                       env={**os.environ, "XLA_PYTHON_CLIENT_PREALLOCATE": "false"})
         self._deprioritise(self._proc.pid)
         self._key, self._seen, self.error = key, None, ""
@@ -306,7 +226,7 @@ def _die_with_parent(workdir: Path, period: float = 0.5) -> None:
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
     if len(args) != 1:
-        print("usage: python -m hjrno_ros.truth.refinement WORKDIR", file=sys.stderr)
+        print("usage: python -m hjrno_ros.ros.brt_node.refinement_process WORKDIR", file=sys.stderr)
         return 2
     try:
         _die_with_parent(Path(args[0]))

@@ -10,7 +10,7 @@ The node coordinates small components (docs/node.md has topics, QoS, status and 
 Each input answers "data, or the reason it is unusable now"; the check is a loop over them, and any
 reason publishes a zero command instead of the filtered one.  The command callback never waits for
 inference.  The node is managed: the worker starts on activate and is joined on deactivate, and before the
-ROS context goes (:mod:`hjrno_ros.ros.main`).
+ROS context goes (:mod:`hjrno_ros.ros.brt_node.main`).
 """
 
 from __future__ import annotations
@@ -33,12 +33,12 @@ from std_msgs.msg import String
 from std_srvs.srv import SetBool
 
 from hjrno_ros.core import least_restrictive, safety_filter
-from hjrno_ros.ros import messages, parameters, status
-from hjrno_ros.ros.inputs import MapData, MapInput, RobotState, StateInput
-from hjrno_ros.ros.interfaces import Interfaces
-from hjrno_ros.ros.model_files import load_model
-from hjrno_ros.ros.refinement import Refinement
-from hjrno_ros.ros.value_worker import ValueWorker, table_state
+from hjrno_ros.ros.brt_node import messages, parameters, status
+from hjrno_ros.ros.brt_node.inputs import MapData, MapInput, RobotState, StateInput
+from hjrno_ros.ros.brt_node.interfaces import Interfaces
+from hjrno_ros.ros.brt_node.refinement import Refinement
+from hjrno_ros.ros.brt_node.value_sources import load_model
+from hjrno_ros.ros.brt_node.value_worker import ValueWorker, table_state
 
 NODE_NAME = "brt_node"
 
@@ -440,6 +440,6 @@ class BrtNode(LifecycleNode):
 
 
 if __name__ == "__main__":
-    from hjrno_ros.ros.main import main
+    from hjrno_ros.ros.brt_node.main import main
 
     sys.exit(main())

@@ -128,8 +128,8 @@ def calibrate_model(stem, folders: list, alpha: float, beta: float, n: int, seed
     ``refine`` > 0 calibrates the model's tables after that many simulated s of the solver warm-started from
     them (brt_node's refine_horizon) instead, and writes ``refine_epsilon`` and ``refine_calibration``:
     the card's ε, for the operator alone, stays as it is."""
-    from hjrno_ros.datasets import held_out
     from hjrno_ros.learning import checkpoint
+    from hjrno_ros.studies import held_out
 
     if not (np.isfinite(refine) and refine >= 0):
         raise ValueError(f"refine must be finite and >= 0 (simulated s), got {refine}")

@@ -24,9 +24,9 @@ import numpy as np
 from hjrno_ros.core import geometry
 from hjrno_ros.core.grids import wrap_angle
 from hjrno_ros.core.value_source import ValueSource
-from hjrno_ros.ros.inputs import MapData, MapInput, RobotState, StateInput
-from hjrno_ros.ros.parameters import obstacle_threshold
-from hjrno_ros.ros.refinement import Refinement
+from hjrno_ros.ros.brt_node.inputs import MapData, MapInput, RobotState, StateInput
+from hjrno_ros.ros.brt_node.parameters import obstacle_threshold
+from hjrno_ros.ros.brt_node.refinement import Refinement
 
 INFERENCE_NICE = 10  # the worker thread's nice value above the node's
 STENCIL_HORIZON_S = 0.25  # s: a slice model's stencil holds what the robot reaches in this time (state age,

@@ -14,8 +14,8 @@ from rclpy.node import Node
 from std_msgs.msg import String
 from std_srvs.srv import SetBool
 
-from hjrno_ros.ros.messages import LATCHED, occupancy_message, odometry_message
-from hjrno_ros.ros.spin import spin_in_background
+from hjrno_ros.ros.brt_node.messages import LATCHED, occupancy_message, odometry_message
+from hjrno_ros.ros.harness.spin import spin_in_background
 
 NODE_NAME = "brt_node"
 

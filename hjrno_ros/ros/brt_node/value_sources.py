@@ -11,7 +11,7 @@ import numpy as np
 from hjrno_ros.core.model_card import ModelCard, paths
 from hjrno_ros.core.scaled_values import ScaledValueFunction, covered_scaling, filter_params
 from hjrno_ros.core.value_source import ValueSource
-from hjrno_ros.ros.robot import robot_params
+from hjrno_ros.ros.brt_node.robot import robot_params
 
 
 def bundled_model_candidates(name: str = "default") -> list[Path]:

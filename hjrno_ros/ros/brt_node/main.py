@@ -26,7 +26,7 @@ def main(argv: list[str] | None = None) -> int:
         from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
         from rclpy.signals import SignalHandlerOptions
 
-        from hjrno_ros.ros.node import NODE_NAME, BrtNode, StartupError
+        from hjrno_ros.ros.brt_node.node import NODE_NAME, BrtNode, StartupError
     except BaseException:
         if not _interrupted:
             raise

@@ -79,7 +79,7 @@ def has_halves(folder: str | Path, unconverged: bool = False) -> bool:
 def refine(solved: list[Solved], predicted: list[np.ndarray], horizon: float) -> list[np.ndarray]:
     """Each scenario's predicted table after ``horizon`` simulated s of the solver warm-started from it
     (what brt_node's ``refine_horizon`` does over a map)."""
-    from hjrno_ros.truth.refinement import refine as solve_from
+    from hjrno_ros.truth.map_refinement import refine as solve_from
 
     out = []
     for s, p in zip(solved, predicted, strict=True):
@@ -96,8 +96,8 @@ def predict(stem: str | Path, solved: list[Solved], average: bool | None = None,
     import torch
 
     from hjrno_ros.learning import checkpoint
-    from hjrno_ros.learning.evaluation import predict_table, sample_params
     from hjrno_ros.learning.slices import InputSpec
+    from hjrno_ros.studies.evaluation import predict_table, sample_params
 
     if inflation_at not in INFLATION_AT:
         raise ValueError(f"inflation_at must be one of {INFLATION_AT}, got {inflation_at!r}")

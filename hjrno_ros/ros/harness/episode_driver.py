@@ -1,6 +1,6 @@
 """Many closed-loop episodes against one running brt_node over DDS, on an occupancy map (``hjrno bench depot``).
 
-:class:`EpisodeRobot` is the demo's :class:`~hjrno_ros.ros.sim_robot.SimRobot` (latched map, odometry in
+:class:`EpisodeRobot` is the demo's :class:`~hjrno_ros.ros.harness.sim_robot.SimRobot` (latched map, odometry in
 the map frame at ``odom_rate``, TwistStamped nominal commands at ``cmd_rate``, the dynamic Dubins car
 integrated in real time with the *filtered* command and a random disturbance ‖d‖ ≤ δ·|v| + d₀, a filtered
 command older than ``cmd_timeout`` counting as zero) with three changes: the world is an occupancy
@@ -29,7 +29,7 @@ from nav_msgs.msg import OccupancyGrid
 from rclpy.executors import SingleThreadedExecutor
 
 from hjrno_ros.core.dynamics import RobotParams
-from hjrno_ros.ros.sim_robot import Log, SimRobot
+from hjrno_ros.ros.harness.sim_robot import Log, SimRobot
 from hjrno_ros.studies import closed_loop
 
 DRIVERS = ("straight", "edge", "goal", "goal_off_map")

@@ -1,4 +1,4 @@
-"""A simulated robot over real ROS 2 topics, for the depot check (:mod:`hjrno_ros.ros.episode_driver`).
+"""A simulated robot over real ROS 2 topics, for the depot check (:mod:`hjrno_ros.ros.harness.episode_driver`).
 
 It latches the map (reliable + transient local), publishes odometry in the map frame at
 ``odom_rate``, sends a careless goal-seeking TwistStamped command stream at ``cmd_rate`` (it
@@ -22,8 +22,8 @@ from rclpy.node import Node
 
 from hjrno_ros.core.dynamics import RobotParams
 from hjrno_ros.core.geometry import union_sdf
-from hjrno_ros.ros.messages import occupancy_array, occupancy_message, odometry_message
-from hjrno_ros.ros.spin import base_topics, drive_base
+from hjrno_ros.ros.brt_node.messages import occupancy_array, occupancy_message, odometry_message
+from hjrno_ros.ros.harness.spin import base_topics, drive_base
 from hjrno_ros.studies import closed_loop
 from hjrno_ros.studies.closed_loop import EpisodeSettings
 

@@ -1,5 +1,5 @@
 """The node's background refinement (``refine_horizon`` > 0): which map to refine, when, and which stage the
-filter may read.  The solve itself runs in a nice-19 child process (:mod:`hjrno_ros.truth.refinement`,
+filter may read.  The solve itself runs in a nice-19 child process (:mod:`hjrno_ros.ros.brt_node.refinement_process`,
 which imports JAX only in that child)."""
 
 from __future__ import annotations
@@ -11,10 +11,12 @@ from typing import Any
 
 import numpy as np
 
+from hjrno_ros.core.map_tiling import map_grid
 from hjrno_ros.core.value_table import ValueTable
-from hjrno_ros.ros.inputs import MapData, RobotState
-from hjrno_ros.truth import refinement as background
+from hjrno_ros.ros.brt_node.inputs import MapData, RobotState
+from hjrno_ros.ros.brt_node.refinement_process import BackgroundRefinement
 
+MAX_STATES = 4_000_000  # (x, y, v, θ) nodes: ~170 × 170 x-y nodes of the default model (a 54 m square map)
 REFINE_SETTLE = 2.0  # s a map must stand before its refinement starts (a map updated every second never does)
 
 
@@ -38,7 +40,7 @@ class Refinement:
                  from_target: bool = False) -> None:
         self.model_grid, self.model, self.horizon, self.stage = model_grid, model, horizon, stage
         self.from_target = from_target
-        self.process = background.BackgroundRefinement(cpus)
+        self.process = BackgroundRefinement(cpus)
         self.version: int | None = None  # map version the refinement runs (or ran) for
         self.error = ""
         self.refined: RefinedValue | None = None
@@ -55,9 +57,9 @@ class Refinement:
             self.version, self.refined, self.error = m.version, None, ""
             self.process.stop()
             far = tuple(o + n * m.resolution for o, n in zip(m.origin, m.occupancy.shape, strict=True))
-            grid = background.map_grid(self.model_grid, m.origin, far)
-            if int(np.prod(grid.shape)) > background.MAX_STATES:
-                self.error = (f"map too large to refine: {grid.shape} states > {background.MAX_STATES:.0e}; "
+            grid = map_grid(self.model_grid, m.origin, far)
+            if int(np.prod(grid.shape)) > MAX_STATES:
+                self.error = (f"map too large to refine: {grid.shape} states > {MAX_STATES:.0e}; "
                               "the operator's windows only")
                 log("warning", self.error)
                 return

@@ -37,10 +37,10 @@ from std_msgs.msg import String
 from hjrno_ros.core.dynamics import RobotParams
 from hjrno_ros.core.model_card import ModelCard
 from hjrno_ros.core.safety_filter import turn_bound
-from hjrno_ros.ros.messages import LATCHED, finite, planar_yaw
-from hjrno_ros.ros.model_files import resolve_model
-from hjrno_ros.ros.parameters import PARAMETERS
-from hjrno_ros.ros.spin import spin_in_background
+from hjrno_ros.ros.brt_node.messages import LATCHED, finite, planar_yaw
+from hjrno_ros.ros.brt_node.parameters import PARAMETERS
+from hjrno_ros.ros.brt_node.value_sources import resolve_model
+from hjrno_ros.ros.harness.spin import spin_in_background
 
 NODE_NAME = "brt_node"
 POSE_TOPIC = "amcl_pose"  # the node under test runs with pose_topic:=amcl_pose, so poses are fuzzed too

@@ -15,7 +15,7 @@ from nav_msgs.msg import OccupancyGrid, Odometry
 from rclpy.executors import SingleThreadedExecutor
 from std_msgs.msg import String
 
-from hjrno_ros.ros.messages import LATCHED
+from hjrno_ros.ros.brt_node.messages import LATCHED
 
 
 def spin_in_background(domain_id: int, make: Callable[[Any], Any]) -> tuple[Any, Callable[[], None]]:

@@ -11,7 +11,7 @@ import math
 from typing import Any
 
 from hjrno_ros.core.dynamics import CAR_MODEL, RobotParams
-from hjrno_ros.ros.parameters import ROBOT_MODEL_NAMES
+from hjrno_ros.ros.brt_node.parameters import ROBOT_MODEL_NAMES
 
 
 def robot_params(card_robot: RobotParams, cfg: dict[str, Any]) -> RobotParams:
