@@ -12,7 +12,7 @@ on brt_node's default topic names (cmd_vel_smoothed, cmd_vel, map, odom); a para
 those topics is used as it is.
 
 The launch packages (launch, launch_ros) are not on PyPI: CI only compiles this file and checks the
-names in it (test/test_launch.py).
+names in it (test/ros/brt_node/test_launch.py).
 """
 # ruff: noqa: I001  (this folder is named launch, so ruff would sort the launch package as first-party)
 

@@ -2,7 +2,7 @@
 
 The node runs in its own process (``python -m hjrno_ros.ros.brt_node.main``, the bundled model unless one is given,
 ``pose_topic:=amcl_pose``) on a private ROS domain; :func:`hjrno_ros.ros.harness.fuzz_driver.fuzz_drive` (the driver of
-test/test_fuzz.py) sends it a random mix of valid and hostile maps, odometry, poses, commands and parameter sets
+test/tools/test_fuzz.py) sends it a random mix of valid and hostile maps, odometry, poses, commands and parameter sets
 for ``seconds`` (default 180) and checks every command it publishes.  Reported: messages by class; crashes (the
 process died, exited non-zero on SIGINT, or printed a traceback); hangs (status gaps over 1 s); non-finite
 outputs and outputs beyond the limits; error lines in the node's log; the node's VmRSS every 5 s after a 30 s

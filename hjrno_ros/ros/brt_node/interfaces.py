@@ -15,31 +15,32 @@ from std_msgs.msg import Float32MultiArray, String
 from std_srvs.srv import SetBool
 
 from hjrno_ros.ros.brt_node import status
+from hjrno_ros.ros.brt_node.config import NodeConfig
 from hjrno_ros.ros.brt_node.messages import LATCHED
 
 
 class Interfaces:
     """``callbacks``: map, odom, pose, cmd, control, status, diagnostics, enable."""
 
-    def __init__(self, node: Any, cfg: dict[str, Any], callbacks: dict[str, Callable[..., Any]]) -> None:
+    def __init__(self, node: Any, cfg: NodeConfig, callbacks: dict[str, Callable[..., Any]]) -> None:
         self._node, self._made = node, []
-        cmd_type = TwistStamped if cfg["enable_stamped_cmd_vel"] else Twist
+        cmd_type = TwistStamped if cfg.enable_stamped_cmd_vel else Twist
         cmd_group = MutuallyExclusiveCallbackGroup()  # command in/out and the stop timer: one cmd_vel writer
         state_group, map_group, misc_group = (MutuallyExclusiveCallbackGroup() for _ in range(3))
         pub, sub, timer = node.create_publisher, node.create_subscription, node.create_timer
-        self.cmd = self._keep(node.destroy_publisher, pub(cmd_type, cfg["cmd_vel_out_topic"], 10))
-        self.grid = self._keep(node.destroy_publisher, pub(OccupancyGrid, cfg["value_grid_topic"], LATCHED))
-        self.value = self._keep(node.destroy_publisher, pub(Float32MultiArray, cfg["value_topic"], 1))
-        self.status = self._keep(node.destroy_publisher, pub(String, cfg["status_topic"], 10))
+        self.cmd = self._keep(node.destroy_publisher, pub(cmd_type, cfg.cmd_vel_out_topic, 10))
+        self.grid = self._keep(node.destroy_publisher, pub(OccupancyGrid, cfg.value_grid_topic, LATCHED))
+        self.value = self._keep(node.destroy_publisher, pub(Float32MultiArray, cfg.value_topic, 1))
+        self.status = self._keep(node.destroy_publisher, pub(String, cfg.status_topic, 10))
         self.diagnostics = self._keep(node.destroy_publisher, pub(DiagnosticArray, "/diagnostics", 10))
-        subscriptions = [(OccupancyGrid, cfg["map_topic"], "map", LATCHED, map_group),
-                         (Odometry, cfg["odom_topic"], "odom", qos_profile_sensor_data, state_group),
-                         (cmd_type, cfg["cmd_vel_in_topic"], "cmd", 10, cmd_group)]
-        if cfg["pose_topic"]:
-            subscriptions.append((PoseWithCovarianceStamped, cfg["pose_topic"], "pose", LATCHED, state_group))
+        subscriptions = [(OccupancyGrid, cfg.map_topic, "map", LATCHED, map_group),
+                         (Odometry, cfg.odom_topic, "odom", qos_profile_sensor_data, state_group),
+                         (cmd_type, cfg.cmd_vel_in_topic, "cmd", 10, cmd_group)]
+        if cfg.pose_topic:
+            subscriptions.append((PoseWithCovarianceStamped, cfg.pose_topic, "pose", LATCHED, state_group))
         for kind, topic, name, qos, group in subscriptions:
             self._keep(node.destroy_subscription, sub(kind, topic, callbacks[name], qos, callback_group=group))
-        self.control_timer = self._keep(node.destroy_timer, timer(cfg["control_period"], callbacks["control"],
+        self.control_timer = self._keep(node.destroy_timer, timer(cfg.control_period, callbacks["control"],
                                                                   callback_group=cmd_group))
         for period, name in ((status.STATUS_PERIOD, "status"), (status.DIAGNOSTICS_PERIOD, "diagnostics")):
             self._keep(node.destroy_timer, timer(period, callbacks[name], callback_group=misc_group))

@@ -34,6 +34,7 @@ from std_srvs.srv import SetBool
 
 from hjrno_ros.core import least_restrictive, safety_filter
 from hjrno_ros.ros.brt_node import messages, parameters, status
+from hjrno_ros.ros.brt_node.config import NodeConfig
 from hjrno_ros.ros.brt_node.inputs import MapData, MapInput, RobotState, StateInput
 from hjrno_ros.ros.brt_node.interfaces import Interfaces
 from hjrno_ros.ros.brt_node.refinement import Refinement
@@ -63,7 +64,7 @@ class BrtNode(LifecycleNode):
         self.type_mismatch: list[str] = []
         for name, spec in parameters.PARAMETERS.items():
             self.declare_parameter(name, spec.default, spec.descriptor())
-        self._cfg, _ = parameters.normalise({name: self.get_parameter(name).value for name in parameters.PARAMETERS})
+        self.config = NodeConfig()  # the declared defaults until configure reads the parameters
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
         change = getattr(self, "_service_change_state", None)
@@ -144,29 +145,28 @@ class BrtNode(LifecycleNode):
 
     # ------------------------------------------------------------------ set-up
     def _configure(self) -> None:
-        cfg, problem = parameters.normalise({name: self.get_parameter(name).value for name in parameters.PARAMETERS})
-        problem = problem or parameters.validate(cfg, startup=True)
-        if problem:
-            raise StartupError(problem)
-        self._cfg = cfg
+        cfg = NodeConfig.build({name: self.get_parameter(name).value for name in parameters.PARAMETERS}, startup=True)
+        if isinstance(cfg, str):
+            raise StartupError(cfg)
+        self.config = cfg
         try:
             self.card, self.vf, self.model_stem = load_model(cfg)
         except ValueError as err:
             raise StartupError(str(err)) from None
         self._apply_settings(cfg)
-        self.maps = MapInput(cfg["map_topic"])
+        self.maps = MapInput(cfg.map_topic)
         self._reset()
         self._create_interfaces(cfg)
         self.configured = True
         self.get_logger().info(
             f"model {self.model_stem} ({self.card.kind}, window {self.vf.window[0]:g} x {self.vf.window[1]:g} m, "
             f"{self.vf.shape[0]}x{self.vf.shape[1]} nodes, {self.vf.params}); epsilon {self.settings.epsilon:g} m, "
-            f"{self.settings.mode}; {cfg['cmd_vel_in_topic']} -> {cfg['cmd_vel_out_topic']} "
+            f"{self.settings.mode}; {cfg.cmd_vel_in_topic} -> {cfg.cmd_vel_out_topic} "
             f"({'TwistStamped' if self._stamped else 'Twist'})")
 
     def _reset(self) -> None:
         """A clean state for an activation: inputs but the map, value table, decisions and counters."""
-        cfg = self._cfg
+        cfg = self.config
         if hasattr(self, "values"):
             self.values.stop()
         self.counts = status.Counters()
@@ -177,15 +177,15 @@ class BrtNode(LifecycleNode):
         self._last_cmd: tuple[float, str] | None = None  # (monotonic s, header frame_id)
         self._last_nominal: tuple[float, float] | None = None  # (linear, angular) of the last filtered nominal
         self._last_output = (0.0, 0.0)  # (linear, angular) last published: what the base executes meanwhile
-        self.states = StateInput(cfg["odom_topic"], cfg["pose_topic"])
-        refinement = (Refinement(self.vf.grid, str(self.model_stem), cfg["refine_horizon"], cfg["refine_stage"],
-                                 int(cfg["refine_cpus"]), from_target=self.card.kind == "solver")
-                      if cfg["refine_horizon"] > 0 else None)
-        self.values = ValueWorker(self.vf, self.maps, self.states, lambda: self._cfg, self._publish_value, self._log,
+        self.states = StateInput(cfg.odom_topic, cfg.pose_topic)
+        refinement = (Refinement(self.vf.grid, str(self.model_stem), cfg.refine_horizon, cfg.refine_stage,
+                                 int(cfg.refine_cpus), from_target=self.card.kind == "solver")
+                      if cfg.refine_horizon > 0 else None)
+        self.values = ValueWorker(self.vf, self.maps, self.states, lambda: self.config, self._publish_value, self._log,
                                   refinement)
 
-    def _create_interfaces(self, cfg: dict[str, Any]) -> None:
-        self._stamped = bool(cfg["enable_stamped_cmd_vel"])
+    def _create_interfaces(self, cfg: NodeConfig) -> None:
+        self._stamped = bool(cfg.enable_stamped_cmd_vel)
         self.io = Interfaces(self, cfg, {"map": self._guard(self._on_map), "odom": self._guard(self._on_odom),
                                          "pose": self._guard(self._on_pose), "cmd": self._on_cmd,
                                          "control": self._guard(self._on_control_timer),
@@ -210,7 +210,7 @@ class BrtNode(LifecycleNode):
         return run
 
     # ------------------------------------------------------------------ parameters
-    def _apply_settings(self, cfg: dict[str, Any]) -> None:
+    def _apply_settings(self, cfg: NodeConfig) -> None:
         self.settings = parameters.filter_settings(self.card, cfg, self.scale, self.vf.params)
         self.refined_settings, self.refined_from = parameters.refined_filter_settings(self.card, self.settings, cfg)
         if self.epsilon_below_calibrated:
@@ -233,27 +233,29 @@ class BrtNode(LifecycleNode):
         """ε set below the card's calibrated margin: its false-safe guarantee is void."""
         return self.calibrated_epsilon is not None and self.settings.epsilon < self.calibrated_epsilon
 
-    def _merged(self, params: list[Parameter]) -> tuple[dict[str, Any], str | None]:
-        cfg = dict(self._cfg)
-        cfg.update({p.name: p.value for p in params if p.name in cfg})
-        return parameters.normalise(cfg)
+    def _merged(self, params: list[Parameter]) -> NodeConfig | str:
+        """The config after a live update, or why it is refused: the start-up sentinel epsilon = -1 may stay
+        while other parameters change, but cannot be set live."""
+        changes = {p.name: p.value for p in params if p.name in parameters.PARAMETERS}
+        return self.config.with_values(changes, startup=all(p.name != "epsilon" for p in params))
 
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
         """Validate a live update as a whole (rclpy checked the descriptors' ranges for doubles)."""
-        cfg, problem = self._merged(params)
-        # the start-up sentinel epsilon = -1 may stay while other parameters change, but cannot be set live
-        problem = problem or parameters.validate(cfg, startup=all(p.name != "epsilon" for p in params))
+        cfg = self._merged(params)
+        problem = cfg if isinstance(cfg, str) else None
         return SetParametersResult(successful=problem is None, reason=problem or "")
 
     def _after_set_parameters(self, params: list[Parameter]) -> None:
-        cfg, _ = self._merged(params)
+        cfg = self._merged(params)
+        if isinstance(cfg, str):  # accepted a moment ago; cannot happen, but never install an invalid set
+            return
         names = {p.name for p in params}
-        self._cfg = cfg
+        self.config = cfg
         if not self.configured:  # read again by configure
             return
         self._apply_settings(cfg)
         if "control_period" in names:
-            self.io.control_timer.timer_period_ns = int(cfg["control_period"] * 1e9)
+            self.io.control_timer.timer_period_ns = int(cfg.control_period * 1e9)
         if names & {"occupied_threshold", "costmap_threshold", "unknown_is_obstacle", "inflation_radius"}:
             self.maps.dirty = True
             self.values.wake()
@@ -281,12 +283,12 @@ class BrtNode(LifecycleNode):
     # ------------------------------------------------------------------ the fail-closed check
     def check(self, now: float) -> tuple[str, dict[str, Any]]:
         """(fail-closed reason or "", the inputs' data so far: map, state, value)."""
-        cfg, data = self._cfg, {}
+        cfg, data = self.config, {}
         sources: list[tuple[str, Callable[[], tuple[Any, str]]]] = [
-            ("map", lambda: self.maps.get(now, cfg["map_timeout"])),
-            ("state", lambda: self.states.get(now, cfg["odom_timeout"], data["map"].frame_id)),
+            ("map", lambda: self.maps.get(now, cfg.map_timeout)),
+            ("state", lambda: self.states.get(now, cfg.odom_timeout, data["map"].frame_id)),
             ("speed", lambda: self._speed_check(data["state"])),
-            ("value", lambda: self.values.get(now, cfg["value_timeout"])),
+            ("value", lambda: self.values.get(now, cfg.value_timeout)),
         ]
         if self.settings.mode != "least_restrictive":  # these modes read V at the state itself
             sources.append(("value", lambda: self.values.covers(data["value"], data["state"])))
@@ -298,7 +300,7 @@ class BrtNode(LifecycleNode):
         return "", data
 
     def _speed_check(self, state: RobotState) -> tuple[float | None, str]:
-        p, tol = self.vf.params, self._cfg["speed_tolerance"]
+        p, tol = self.vf.params, self.config["speed_tolerance"]
         if not p.v_min - tol <= state.v <= p.v_max + tol:
             return None, f"speed {state.v:.4g} m/s outside the model's range [{p.v_min:g}, {p.v_max:g}] m/s"
         return state.v, ""
@@ -369,7 +371,7 @@ class BrtNode(LifecycleNode):
         if not (self.active and self.enabled) or last is None:
             return
         now = time.monotonic()
-        if now - last[0] > self._cfg["stop_pub_timeout"]:
+        if now - last[0] > self.config["stop_pub_timeout"]:
             return
         reason, _ = self.check(now)
         if reason:
@@ -386,7 +388,7 @@ class BrtNode(LifecycleNode):
 
     # ------------------------------------------------------------------ outputs
     def _publish_value(self, values: np.ndarray, info: dict, m: MapData, state: RobotState) -> None:
-        grid, arr = messages.value_messages(values, info, state.stamp_ns, m.stamp, self._cfg["value_clip"])
+        grid, arr = messages.value_messages(values, info, state.stamp_ns, m.stamp, self.config["value_clip"])
         self.io.grid.publish(grid)
         self.io.value.publish(arr)
 
@@ -394,11 +396,35 @@ class BrtNode(LifecycleNode):
         """The status published as JSON on ``status_topic`` (also used by the diagnostics)."""
         now = time.monotonic()
         reason, data = self.check(now)
-        return status.build(self, now, reason, data, self._present_decision(now, data))
+        return status.build(self._status_inputs(now, reason, data))
+
+    def _status_inputs(self, now: float, reason: str, data: dict[str, Any]) -> status.StatusInputs:
+        """The present's data for the status: V and W at the checked state, the inputs' ages and counters."""
+        state, val = data.get("state"), data.get("value")
+        value = certificate = None
+        if state is not None and val is not None:
+            p = self.vf.params
+            s = table_state(state, val.theta, p.v_min, p.v_max)
+            if self.values.covers(val, state)[0] is not None:
+                value = float(val.table.value(s)[0])
+            if self.settings.mode == "least_restrictive":
+                certificate = float(self.certificate(data, self.settings.epsilon)(s[None])[0])
+        refinement, odom = self.values.refinement, self.states.odom
+        return status.StatusInputs(
+            now=now, reason=reason, decision=self._present_decision(now, data), enabled=self.enabled, state=state,
+            value=value, certificate=certificate, settings=self.settings,
+            epsilon_calibrated=self.calibrated_epsilon, epsilon_below_calibrated=self.epsilon_below_calibrated,
+            refined=(self.refined_settings.epsilon, self.refined_from) if refinement is not None else None,
+            latest=self.values.value, map=self.maps.current, map_error=self.maps.error,
+            maps_rejected=self.maps.rejected, odom_received=odom.received if odom else None,
+            counts=self.counts.snapshot(), inferences=self.values.inferences, inference_errors=self.values.errors,
+            filter_ms=self.command_times.summary(), type_mismatch=list(self.type_mismatch),
+            refinement=refinement.status(self.maps.current) if refinement is not None else None,
+            model=str(self.model_stem), symmetry_average=self.card.symmetry_average)
 
     def _present_decision(self, now: float, data: dict[str, Any]) -> safety_filter.Decision | None:
         """What the filter would do now with the last nominal command, if one came within stop_pub_timeout."""
-        recent = self._last_cmd is not None and now - self._last_cmd[0] <= self._cfg["stop_pub_timeout"]
+        recent = self._last_cmd is not None and now - self._last_cmd[0] <= self.config["stop_pub_timeout"]
         if not recent or self._last_nominal is None or "value" not in data:
             return None
         return self._decide(data, self._last_nominal)
@@ -409,7 +435,7 @@ class BrtNode(LifecycleNode):
         refined = val.source == "refined" and val.horizon >= self.refined_from
         settings = self.refined_settings if refined else self.settings
         if settings.mode == "least_restrictive":
-            delay = max(time.monotonic() - state.received, 0.0) + self._cfg["command_latency"]
+            delay = max(time.monotonic() - state.received, 0.0) + self.config["command_latency"]
             return least_restrictive.decide(p, settings, self.certificate(data, settings.epsilon),
                                             state.vector(p.v_min, p.v_max), *nominal, self._last_output, delay)
         s = table_state(state, val.theta, p.v_min, p.v_max)
@@ -431,7 +457,7 @@ class BrtNode(LifecycleNode):
     def _publish_diagnostics(self) -> None:
         if not self.active:
             return
-        found = messages.command_type_mismatch(self, self._cfg["cmd_vel_in_topic"], self._cfg["cmd_vel_out_topic"],
+        found = messages.command_type_mismatch(self, self.config["cmd_vel_in_topic"], self.config["cmd_vel_out_topic"],
                                                self._stamped)
         if found and found != self.type_mismatch:
             self.get_logger().warning("command type mismatch: " + "; ".join(found))

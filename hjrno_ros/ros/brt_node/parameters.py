@@ -9,13 +9,16 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
 from hjrno_ros.core import safety_filter
 from hjrno_ros.core.dynamics import CAR_MODEL, DIFF_DRIVE_MODEL, RobotParams
 from hjrno_ros.core.model_card import ModelCard
+
+if TYPE_CHECKING:  # the config is built from this module's table
+    from hjrno_ros.ros.brt_node.config import NodeConfig
 
 
 @dataclasses.dataclass(frozen=True)
@@ -172,31 +175,31 @@ def validate(cfg: dict[str, Any], startup: bool = False) -> str | None:
     return None
 
 
-def obstacle_threshold(cfg: dict[str, Any]) -> int:
+def obstacle_threshold(cfg: NodeConfig) -> int:
     """The occupancy value from which a map cell is an obstacle, for the map's kind."""
-    return int(cfg["costmap_threshold"] if cfg["map_kind"] == "costmap" else cfg["occupied_threshold"])
+    return int(cfg.costmap_threshold if cfg.map_kind == "costmap" else cfg.occupied_threshold)
 
 
-def filter_settings(card: ModelCard, cfg: dict[str, Any], scale: float = 1.0,
+def filter_settings(card: ModelCard, cfg: NodeConfig, scale: float = 1.0,
                     robot: RobotParams | None = None) -> safety_filter.FilterSettings:
     """The filter's settings: ``epsilon``, or for -1 the card's calibrated margin (a length: times ``scale``, the
     robot's size against the card's robot) plus, for the modes that judge the present state only, the ``robot``'s
     sampling margin over one control period (least_restrictive looks one period ahead instead)."""
-    dt = float(cfg["control_period"])
-    ahead = cfg["filter_mode"] == "least_restrictive"
+    dt = float(cfg.control_period)
+    ahead = cfg.filter_mode == "least_restrictive"
     sampled = safety_filter.sampling_margin(robot, dt) if robot is not None and not ahead else 0.0
-    eps = cfg["epsilon"] if cfg["epsilon"] >= 0 else card.margin() * scale + sampled
-    return safety_filter.FilterSettings(epsilon=float(eps), mode=cfg["filter_mode"],
-                                        blend_width=float(cfg["blend_width"]), dt=float(cfg["control_period"]),
-                                        decay_rate=float(cfg["decay_rate"]))
+    eps = cfg.epsilon if cfg.epsilon >= 0 else card.margin() * scale + sampled
+    return safety_filter.FilterSettings(epsilon=float(eps), mode=cfg.filter_mode,
+                                        blend_width=float(cfg.blend_width), dt=float(cfg.control_period),
+                                        decay_rate=float(cfg.decay_rate))
 
 
 def refined_filter_settings(card: ModelCard, settings: safety_filter.FilterSettings,
-                            cfg: dict[str, Any]) -> tuple[safety_filter.FilterSettings, float]:
+                            cfg: NodeConfig) -> tuple[safety_filter.FilterSettings, float]:
     """The filter's settings on a refined table and the stage (simulated s) from which they hold:
     ``refine_epsilon`` if set (>= 0), from the first stage; for -1 the card's refine_epsilon from the stage
     it was calibrated at (``hjrno calibrate --refine``); before that stage, or without one, ``settings``."""
-    eps = cfg["refine_epsilon"]
+    eps = cfg.refine_epsilon
     if eps >= 0:
         return dataclasses.replace(settings, epsilon=float(eps)), 0.0
     if card.refine_epsilon is None:

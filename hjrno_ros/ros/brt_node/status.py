@@ -12,8 +12,6 @@ from typing import Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
-from hjrno_ros.ros.brt_node.value_worker import table_state
-
 STATUS_PERIOD = 0.1  # s
 DIAGNOSTICS_PERIOD = 1.0  # s
 LEVELS = {"ok": DiagnosticStatus.OK, "intervening": DiagnosticStatus.OK, "clipped": DiagnosticStatus.WARN,
@@ -107,49 +105,68 @@ def nan_if_none(x: float | None) -> float:
     return math.nan if x is None else x
 
 
-def build(node: Any, now: float, reason: str, data: dict[str, Any], decision: Any) -> dict[str, Any]:
+@dataclasses.dataclass(frozen=True)
+class StatusInputs:
+    """Everything the status reports, gathered by the node at one instant (``now``, monotonic s)."""
+
+    now: float
+    reason: str  # fail-closed reason, "" if none
+    decision: Any  # the filter's decision on the last recent nominal command, or None
+    enabled: bool
+    state: Any  # RobotState or None
+    value: float | None  # V at the state where the table covers it
+    certificate: float | None  # the least-restrictive certificate W at the state
+    settings: Any  # FilterSettings in force
+    epsilon_calibrated: float | None
+    epsilon_below_calibrated: bool
+    refined: tuple[float, float] | None  # (refine epsilon, from stage s) when refinement runs
+    latest: Any  # the worker's newest value table (latency_ms, computed, grid_info, source) or None
+    map: Any  # MapData or None
+    map_error: str
+    maps_rejected: int
+    odom_received: float | None
+    counts: dict[str, int]
+    inferences: int
+    inference_errors: int
+    filter_ms: dict[str, float] | None
+    type_mismatch: list[str]
+    refinement: dict[str, Any] | None
+    model: str
+    symmetry_average: Any
+
+
+def build(s: StatusInputs) -> dict[str, Any]:
     """The status JSON of a configured node (docs/node.md, "Status JSON")."""
-    state, val = data.get("state"), data.get("value")
-    value = certificate = None
-    if state is not None and val is not None:
-        p = node.vf.params
-        s = table_state(state, val.theta, p.v_min, p.v_max)
-        if node.values.covers(val, state)[0] is not None:
-            value = float(val.table.value(s)[0])
-        if node.settings.mode == "least_restrictive":
-            certificate = float(node.certificate(data, node.settings.epsilon)(s[None])[0])
-    ahead = certificate is not None
-    name, why = mode(node.enabled, reason, decision, nan_if_none(certificate if ahead else value),
-                     0.0 if ahead else node.settings.epsilon)
-    m, odom, latest = node.maps.current, node.states.odom, node.values.value
-    counts = node.counts.snapshot()
-    refinement = node.values.refinement
+    ahead = s.certificate is not None
+    name, why = mode(s.enabled, s.reason, s.decision, nan_if_none(s.certificate if ahead else s.value),
+                     0.0 if ahead else s.settings.epsilon)
+    m, latest, counts, state = s.map, s.latest, s.counts, s.state
     robot = None if state is None else {"x": round(state.x, 4), "y": round(state.y, 4), "v": round(state.v, 4),
                                         "theta": round(state.theta, 4), "frame_id": state.frame_id}
     return {
-        "state": name, "reason": why, "value": value, "certificate": certificate, "robot": robot,
-        "epsilon": node.settings.epsilon,
-        "epsilon_calibrated": node.calibrated_epsilon,
-        "epsilon_below_calibrated": node.epsilon_below_calibrated,
-        "refine_epsilon": node.refined_settings.epsilon if refinement is not None else None,
-        "refine_epsilon_from_s": node.refined_from if refinement is not None else None,
-        "filter_mode": node.settings.mode,
+        "state": name, "reason": why, "value": s.value, "certificate": s.certificate, "robot": robot,
+        "epsilon": s.settings.epsilon,
+        "epsilon_calibrated": s.epsilon_calibrated,
+        "epsilon_below_calibrated": s.epsilon_below_calibrated,
+        "refine_epsilon": s.refined[0] if s.refined is not None else None,
+        "refine_epsilon_from_s": s.refined[1] if s.refined is not None else None,
+        "filter_mode": s.settings.mode,
         "inference_latency_ms": round(latest.latency_ms, 2) if latest else None,
-        "filter_ms": node.command_times.summary(),
-        "value_age_s": round(now - latest.computed, 3) if latest else None,
-        "odom_age_s": round(now - odom.received, 3) if odom else None,
-        "map_age_s": round(now - m.received, 3) if m else None,
+        "filter_ms": s.filter_ms,
+        "value_age_s": round(s.now - latest.computed, 3) if latest else None,
+        "odom_age_s": round(s.now - s.odom_received, 3) if s.odom_received is not None else None,
+        "map_age_s": round(s.now - m.received, 3) if m else None,
         "map_stamp": [m.stamp.sec, m.stamp.nanosec] if m else None,
-        "last_map_error": node.maps.error,
-        "cmd_type_mismatch": list(node.type_mismatch),
-        "dropped": {**{k: counts[k] for k in ("cmd", "odom", "pose")}, "map": node.maps.rejected},
+        "last_map_error": s.map_error,
+        "cmd_type_mismatch": list(s.type_mismatch),
+        "dropped": {**{k: counts[k] for k in ("cmd", "odom", "pose")}, "map": s.maps_rejected},
         "counts": {**{k: counts[k] for k in ("commands", "interventions", "clipped", "stops")},
-                   "inferences": node.values.inferences, "inference_errors": node.values.errors},
+                   "inferences": s.inferences, "inference_errors": s.inference_errors},
         "value_grid": latest.grid_info if latest else None,
         "value_source": latest.source if latest else None,
-        "refinement": refinement.status(m) if refinement is not None else None,
-        "model": str(node.model_stem),
-        "symmetry_average": node.card.symmetry_average,
+        "refinement": s.refinement,
+        "model": s.model,
+        "symmetry_average": s.symmetry_average,
     }
 
 

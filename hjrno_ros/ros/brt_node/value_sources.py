@@ -8,16 +8,18 @@ from typing import Any
 
 import numpy as np
 
+import hjrno_ros
 from hjrno_ros.core.model_card import ModelCard, paths
 from hjrno_ros.core.scaled_values import ScaledValueFunction, covered_scaling, filter_params
 from hjrno_ros.core.value_source import ValueSource
+from hjrno_ros.ros.brt_node.config import NodeConfig
 from hjrno_ros.ros.brt_node.robot import robot_params
 
 
 def bundled_model_candidates(name: str = "default") -> list[Path]:
     """Where the bundled model ``name`` is looked for: the source checkout, then the package's share folder
     (ament index via AMENT_PREFIX_PATH, the install prefix this module lives in, sys.prefix)."""
-    here = Path(__file__).resolve()
+    package = Path(hjrno_ros.__file__).resolve().parent  # the source tree's or site-packages' hjrno_ros/
     shares = []
     try:
         from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
@@ -28,10 +30,10 @@ def bundled_model_candidates(name: str = "default") -> list[Path]:
             pass
     except ImportError:
         pass
-    if here.parents[2].name == "site-packages":  # <prefix>/lib/pythonX.Y/site-packages/hjrno_ros/ros/this.py
-        shares.append(here.parents[5] / "share" / "hjrno_ros")
+    if package.parent.name == "site-packages":  # <prefix>/lib/pythonX.Y/site-packages/hjrno_ros
+        shares.append(package.parents[3] / "share" / "hjrno_ros")
     shares.append(Path(sys.prefix) / "share" / "hjrno_ros")
-    candidates = [here.parents[2] / "models" / name] + [share / "models" / name for share in shares]
+    candidates = [package.parent / "models" / name] + [share / "models" / name for share in shares]
     return list(dict.fromkeys(candidates))
 
 
@@ -69,15 +71,15 @@ class SolverGrid:
         raise TypeError("a solver card has no operator: its tables come from the node's solver")
 
 
-def load_model(cfg: dict[str, Any]) -> tuple[ModelCard, ValueSource, Path]:
+def load_model(cfg: NodeConfig) -> tuple[ModelCard, ValueSource, Path]:
     """(card, learned value function, stem) for the node's parameters; the card is checked before torch and the
     weights are loaded.  A solver card needs ``refine_horizon`` > 0 and loads no weights.  ValueError, one line."""
-    stem = resolve_model(cfg["model_path"])
+    stem = resolve_model(cfg.model_path)
     card = ModelCard.load(stem)
     if card.kind == "solver":
         if robot_params(card.dynamics, cfg) != card.dynamics:
             raise ValueError(f"{stem} is a solver card: write the robot's limits into the card, not the parameters")
-        if cfg["refine_horizon"] <= 0:
+        if cfg.refine_horizon <= 0:
             raise ValueError(f"{stem} is a solver card (no weights): set refine_horizon > 0 (simulated s of the "
                              "solver over the map)")
         return card, SolverGrid(card), stem
@@ -85,13 +87,13 @@ def load_model(cfg: dict[str, Any]) -> tuple[ModelCard, ValueSource, Path]:
     scaling = covered_scaling(card.dynamics, robot, card.inputs.get("param_ranges"))
     robot = filter_params(card.dynamics, robot)
     scaled = robot != card.dynamics
-    if scaled and cfg["refine_horizon"] > 0:
+    if scaled and cfg.refine_horizon > 0:
         raise ValueError("refine_horizon needs the model card's own car (the refinement solves its dynamics); "
                          f"the robot is {scaling.length:.4g} times its size with limits {robot}")
     from hjrno_ros.learning.value_function import LearnedValueFunction  # torch: seconds, after the cheap checks
 
     try:
-        vf = LearnedValueFunction(stem, device=cfg["device"] or None, threads=int(cfg["inference_threads"]))
+        vf = LearnedValueFunction(stem, device=cfg.device or None, threads=int(cfg.inference_threads))
     except (ValueError, KeyError, TypeError, OSError) as err:
         raise ValueError(f"cannot load model {stem}: {err}") from None
     if scaled:

@@ -24,6 +24,7 @@ import numpy as np
 from hjrno_ros.core import geometry
 from hjrno_ros.core.grids import wrap_angle
 from hjrno_ros.core.value_source import ValueSource
+from hjrno_ros.ros.brt_node.config import NodeConfig
 from hjrno_ros.ros.brt_node.inputs import MapData, MapInput, RobotState, StateInput
 from hjrno_ros.ros.brt_node.parameters import obstacle_threshold
 from hjrno_ros.ros.brt_node.refinement import Refinement
@@ -68,7 +69,7 @@ class ValueWorker:
     """Owns the value table; ``start``/``stop`` its thread.  ``publish(values, info, map, state)`` is called
     from the worker after each new table; ``log(level, text)`` reports errors."""
 
-    def __init__(self, vf: ValueSource, maps: MapInput, states: StateInput, cfg: Callable[[], dict],
+    def __init__(self, vf: ValueSource, maps: MapInput, states: StateInput, cfg: Callable[[], NodeConfig],
                  publish: Callable[[np.ndarray, dict, MapData, RobotState], None],
                  log: Callable[[str, str], None], refinement: Refinement | None = None) -> None:
         self.vf, self.maps, self.states, self.cfg, self.publish, self.log = vf, maps, states, cfg, publish, log
@@ -120,7 +121,7 @@ class ValueWorker:
     def _loop(self) -> None:
         lower_thread_priority(INFERENCE_NICE)
         while not self._stop.is_set():
-            self._wake.wait(1.0 / self.cfg()["inference_rate"])
+            self._wake.wait(1.0 / self.cfg().inference_rate)
             self._wake.clear()
             if self._stop.is_set():
                 break
@@ -140,11 +141,11 @@ class ValueWorker:
         clearance by that much: docs/design.md, "Inflation"); ``model_grid`` False: of the map alone (what the
         braking bound, which reads the map and not the model's grid, needs)."""
         cfg = self.cfg()
-        radius = cfg["inflation_radius"]
+        radius = cfg.inflation_radius
         if radius >= 0:
-            return cfg["footprint_radius"] + float(radius)
+            return cfg.footprint_radius + float(radius)
         grid = self.vf.grid.half_cell_diagonal if model_grid else 0.0
-        return cfg["footprint_radius"] + max(grid, map_resolution / math.sqrt(2))
+        return cfg.footprint_radius + max(grid, map_resolution / math.sqrt(2))
 
     def clearance(self, m: MapData, points: np.ndarray) -> np.ndarray:
         """The braking bound's clearance at x-y ``points``: the map's signed distance minus the footprint and the
@@ -161,7 +162,7 @@ class ValueWorker:
 
     def step(self) -> None:
         cfg = self.cfg()
-        problem = self.maps.install(obstacle_threshold(cfg), bool(cfg["unknown_is_obstacle"]))
+        problem = self.maps.install(obstacle_threshold(cfg), bool(cfg.unknown_is_obstacle))
         if problem:
             self.log("warning", f"map rejected: {problem}")
         m = self.maps.current
@@ -171,7 +172,7 @@ class ValueWorker:
         if self.refinement is not None:
             self.refinement.step(m, self.v0, self.log)
         now = time.monotonic()
-        state, _ = self.states.get(now, cfg["odom_timeout"], m.frame_id)
+        state, _ = self.states.get(now, cfg.odom_timeout, m.frame_id)
         if state is None:
             return
         if self.refinement is not None:
@@ -205,13 +206,13 @@ class ValueWorker:
         if not self._stop.is_set():
             self.publish(values, info, m, state)
 
-    def _stale(self, m: MapData, state: RobotState, refined: Any, now: float, cfg: dict) -> bool:
+    def _stale(self, m: MapData, state: RobotState, refined: Any, now: float, cfg: NodeConfig) -> bool:
         """Whether the table must be recomputed for this map and state."""
         val = self.value
         return bool(self.error or val is None or val.map_version != m.version
                     or (val.table is not refined.table if refined else val.source != "operator")
                     or math.hypot(state.x - val.center[0], state.y - val.center[1]) > self.recenter_distance(cfg)
-                    or now - val.computed > 0.5 * cfg["value_timeout"]
+                    or now - val.computed > 0.5 * cfg.value_timeout
                     or not (self.whole_table or refined) and (  # the state is half way to a stencil's edge
                         abs(state.v - val.v) > 0.5 * self.reach[0]
                         or abs(float(wrap_angle(state.theta - val.theta))) > 0.5 * self.reach[1]))
@@ -221,9 +222,9 @@ class ValueWorker:
         """Whether each table holds every speed and heading of its window (a table model)."""
         return self.vf.whole_table
 
-    def recenter_distance(self, cfg: dict) -> float:
+    def recenter_distance(self, cfg: NodeConfig) -> float:
         """m: ``recenter_distance``, at most a quarter of the window's width (a small robot's window is small)."""
-        return min(cfg["recenter_distance"], 0.25 * min(self.vf.window))
+        return min(cfg.recenter_distance, 0.25 * min(self.vf.window))
 
     # ------------------------------------------------------------------ the value input
     def get(self, now: float, timeout: float) -> tuple[ValueData | None, str]:

@@ -11,7 +11,7 @@ the node filters again).  Every command the node publishes must be finite, plana
 zero) and within the model's limits: v_min ≤ linear ≤ v_max and |angular| ≤ κ_max·max(|v|, |v′|), v′ = linear
 clipped to v ± a_max·dt, for one of the odometry speeds (clipped to [v_min, v_max], as the node does) and control
 periods the node can have had (those sent in the last ``RACE_WINDOW`` seconds and the one before: odometry and
-commands race).  Used by test/test_fuzz.py (≤ 45 s) and ``hjrno bench fuzz`` (minutes, with RSS).
+commands race).  Used by test/tools/test_fuzz.py (≤ 45 s) and ``hjrno bench fuzz`` (minutes, with RSS).
 """
 
 from __future__ import annotations

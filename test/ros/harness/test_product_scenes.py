@@ -80,17 +80,16 @@ def test_a_solver_card_waits_for_a_settled_table(solver_card):
     under-approximates the tube), and a solver card without refine_horizon is refused with one line."""
     card = ModelCard.load(solver_card)
     assert card.kind == "solver" and card.dynamics == CAR
-    from hjrno_ros.ros.brt_node.parameters import PARAMETERS
+    from hjrno_ros.ros.brt_node.config import NodeConfig
     from hjrno_ros.ros.brt_node.value_sources import load_model
 
-    cfg = {name: spec.default for name, spec in PARAMETERS.items()}
     with pytest.raises(ValueError, match="set robot_model: car"):  # the default robot_model is diff_drive
-        load_model({**cfg, "model_path": str(solver_card), "refine_horizon": 10.0})
-    cfg["robot_model"] = "car"
+        load_model(NodeConfig(model_path=str(solver_card), refine_horizon=10.0))
+    car = {"robot_model": "car", "model_path": str(solver_card)}
     with pytest.raises(ValueError, match="refine_horizon > 0"):
-        load_model({**cfg, "model_path": str(solver_card), "refine_horizon": 0.0})
+        load_model(NodeConfig(**car, refine_horizon=0.0))
     with pytest.raises(ValueError, match="write the robot's limits into the card"):
-        load_model({**cfg, "model_path": str(solver_card), "refine_horizon": 10.0, "v_max": 2.0})
+        load_model(NodeConfig(**car, refine_horizon=10.0, v_max=2.0))
 
 
 def test_every_value_source_has_the_members_the_node_reads(solver_card):

@@ -22,7 +22,7 @@ pytest.importorskip("rclpy")
 from hjrno_ros.core.map_file import load_map  # noqa: E402
 from hjrno_ros.tools import depot_check  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 DEPOT = ROOT.parent / "shared" / "maps" / "depot.yaml"  # CI has ../shared beside the clone
 EPISODES, SECONDS = 12, 6.0
 

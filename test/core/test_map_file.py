@@ -9,7 +9,7 @@ import pytest
 
 from hjrno_ros.core.map_file import load_map, occupancy_from_pixels, read_pgm
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 DEPOT = ROOT.parent / "shared" / "maps" / "depot.yaml"  # CI has ../shared beside the clone
 
 YAML = """image: {image}

@@ -13,7 +13,7 @@ from hjrno_ros.core.dynamics import CarParams
 from hjrno_ros.core.model_card import DEFAULT_EPSILON, ModelCard, load_card
 from hjrno_ros.learning import checkpoint
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 BUNDLED = ("paper_cnn", "v5")
 
 

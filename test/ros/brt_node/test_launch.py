@@ -19,7 +19,7 @@ pytest.importorskip("rclpy")
 
 from hjrno_ros.ros.brt_node.parameters import PARAMETERS  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 LAUNCH = ROOT / "launch" / "brt_node.launch.py"
 RVIZ = ROOT / "rviz" / "brt_node.rviz"
 ARGUMENTS = {"params_file", "use_sim_time", "autostart", "namespace", "log_level", "cmd_vel_in", "cmd_vel_out",

@@ -25,7 +25,7 @@ from hjrno_ros.ros.brt_node import refinement_process as mr
 from hjrno_ros.truth import map_refinement
 from hjrno_ros.truth.systems import DynamicDubinsCar
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 MODEL = ROOT / "models" / "paper_cnn"
 
 

@@ -20,7 +20,7 @@ from hjrno_ros.truth import problems
 from hjrno_ros.truth.scenarios import make_scenario
 from hjrno_ros.truth.solver import interior_mask, rise_with_speed, solve
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 COARSE = (32, 32, 9, 16)
 REVERSING = CarParams.product(v_min=-0.6)  # 9 speed nodes -0.6, -0.4, ..., 1.0: v = 0 is a node
 

@@ -31,7 +31,7 @@ from hjrno_ros.core import geometry, safety_filter
 from hjrno_ros.core.dynamics import CarParams
 from hjrno_ros.core.model_card import ModelCard
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning",
                                         "ignore:invalid value encountered:RuntimeWarning")
 HOSTILE = (math.nan, math.inf, -math.inf, 1e308, -1e308, 1.7976931348623157e308, 5e-324, -5e-324, 0.0, -0.0, 1e-300,

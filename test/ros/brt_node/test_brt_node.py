@@ -43,11 +43,12 @@ from std_srvs.srv import SetBool  # noqa: E402
 from hjrno_ros.core import geometry  # noqa: E402
 from hjrno_ros.core.safety_filter import FilterSettings  # noqa: E402
 from hjrno_ros.learning import checkpoint  # noqa: E402
+from hjrno_ros.ros.brt_node.config import NodeConfig  # noqa: E402
 from hjrno_ros.ros.brt_node.node import BrtNode  # noqa: E402
 from hjrno_ros.ros.brt_node.parameters import refined_filter_settings  # noqa: E402
 from hjrno_ros.ros.brt_node.value_worker import INFERENCE_NICE  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 DOMAIN = 1 + os.getpid() % 50  # Linux: ids <= 101 avoid the ephemeral port range
 RES, ORIGIN, SIZE = 0.1, (-10.0, -10.0), 200  # 20 m x 20 m map
 WALL = (slice(150, 154), slice(70, 130))  # x in [5.0, 5.4], y in [-3, 3]
@@ -382,10 +383,10 @@ def test_stale_odometry_stops_within_one_control_period(ros):
     assert wait_for(lambda: driver.out, 3.0)
     t_zero, zero = driver.out[0]
     assert zero.linear.x == 0.0 and zero.angular.z == 0.0
-    control_period, odom_timeout = node._cfg["control_period"], node._cfg["odom_timeout"]
+    control_period, odom_timeout = node.config.control_period, node.config.odom_timeout
     assert t_zero - t_last <= odom_timeout + control_period + 0.5, t_zero - t_last  # margin: loaded 2-core CI
     assert "odometry is" in driver.status["reason"] or wait_for(lambda: "odometry" in driver.status["reason"], 1.0)
-    time.sleep(node._cfg["stop_pub_timeout"] + 0.3 - (time.monotonic() - t_last))
+    time.sleep(node.config.stop_pub_timeout + 0.3 - (time.monotonic() - t_last))
     driver.out.clear()
     time.sleep(0.4)
     assert not driver.out, "zeros must stop after stop_pub_timeout so teleop can take over"
@@ -628,9 +629,9 @@ def test_refined_epsilon_comes_from_the_parameter_then_the_card_then_epsilon():
     plain = dataclasses.replace(ModelCard.load(ROOT / "models" / "paper_cnn"), epsilon=0.2, refine_epsilon=None,
                                 refine_horizon=None)
     card = dataclasses.replace(plain, refine_epsilon=0.12, refine_horizon=16.0)
-    assert refined_filter_settings(card, base, {"refine_epsilon": 0.3}) == (FilterSettings(0.3, "blend"), 0.0)
-    assert refined_filter_settings(card, base, {"refine_epsilon": -1.0}) == (FilterSettings(0.12, "blend"), 16.0)
-    assert refined_filter_settings(plain, base, {"refine_epsilon": -1.0}) == (base, 0.0)
+    assert refined_filter_settings(card, base, NodeConfig(refine_epsilon=0.3)) == (FilterSettings(0.3, "blend"), 0.0)
+    assert refined_filter_settings(card, base, NodeConfig(refine_epsilon=-1.0)) == (FilterSettings(0.12, "blend"), 16.0)
+    assert refined_filter_settings(plain, base, NodeConfig(refine_epsilon=-1.0)) == (base, 0.0)
 
 
 def test_refinement_takes_over_the_filter_for_its_map_only(model_stem, tmp_path):
@@ -776,7 +777,7 @@ def test_status_reports_the_present_state(ros):
     """V <= epsilon without a recent command is "unsafe_idle" (WARN), not "ok"; far away it is "ok"."""
     driver, node = ros
     settle(driver, *NEAR_WALL, 1.0, 0.0)
-    assert wait_for(lambda: time.monotonic() - (node._last_cmd or (-math.inf,))[0] > node._cfg["stop_pub_timeout"]
+    assert wait_for(lambda: time.monotonic() - (node._last_cmd or (-math.inf,))[0] > node.config.stop_pub_timeout
                     and driver.status["state"] == "unsafe_idle", 10.0), driver.status
     assert wait_for(lambda: driver.diagnostics is not None and driver.diagnostics.level == DiagnosticStatus.WARN, 3.0)
     settle(driver, *FAR, 0.5, 0.0)

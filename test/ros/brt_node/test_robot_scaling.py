@@ -19,15 +19,15 @@ from hjrno_ros.core.safety_filter import sampling_margin  # noqa: E402
 from hjrno_ros.core.scaled_values import ScaledValueFunction, covered_scaling  # noqa: E402
 from hjrno_ros.core.similarity import Dimensionless  # noqa: E402
 from hjrno_ros.ros.brt_node import parameters  # noqa: E402
+from hjrno_ros.ros.brt_node.config import NodeConfig  # noqa: E402
 from hjrno_ros.ros.brt_node.robot import robot_params  # noqa: E402
 
 S = 0.25  # the small robot's length scale against the card's car: κ_max 4 /m, v_max 0.5 m/s, a_max 1 m/s²
 SMALL = {"kappa_max": 4.0, "v_max": 0.5, "a_max": 1.0}
 
 
-def cfg(**robot) -> dict:
-    values = {name: spec.default for name, spec in parameters.PARAMETERS.items()}
-    return {**values, "robot_model": "car", **robot}
+def cfg(**robot) -> NodeConfig:
+    return NodeConfig(**{"robot_model": "car", **robot})
 
 
 def test_robot_parameters_map_onto_the_card_or_are_refused(model_stem):  # noqa: F811
@@ -45,8 +45,8 @@ def test_robot_parameters_map_onto_the_card_or_are_refused(model_stem):  # noqa:
         robot_params(card.dynamics, cfg(robot_model="diff_drive"))
     with pytest.raises(ValueError, match="omega_max is for the other robot model"):
         robot_params(card.dynamics, cfg(omega_max=2.0))
-    assert "a_max" in parameters.validate(cfg(a_max=0.0), startup=True)
-    assert parameters.validate(cfg(v_min=math.nan), startup=True) is None
+    assert "a_max" in NodeConfig.build({**cfg().as_dict(), "a_max": 0.0}, startup=True)
+    assert isinstance(NodeConfig.build(cfg(v_min=math.nan).as_dict(), startup=True), NodeConfig)
 
 
 def test_a_scaled_table_is_the_card_table_at_the_robot_size(model_stem):  # noqa: F811
@@ -86,7 +86,8 @@ def test_the_node_filters_a_smaller_robot_on_a_smaller_map(model_stem, ros):  # 
         margin = ModelCard.load(model_stem).margin()
         assert node.vf.params.kappa_max == 4.0 and node.settings.epsilon == pytest.approx(S * margin)  # one period
         # ahead (least_restrictive): no sampling margin; the modes that judge the present state add it
-        blend = parameters.filter_settings(node.card, {**node._cfg, "filter_mode": "blend"}, node.scale, node.vf.params)
+        blend = parameters.filter_settings(node.card, dataclasses.replace(node.config, filter_mode="blend"), node.scale,
+                                           node.vf.params)
         assert blend.epsilon == pytest.approx(S * margin + sampling_margin(node.vf.params, node.settings.dt))
         for name, (x, y, v, theta) in (("far", (*FAR, 0.5, 0.0)), ("near", (*NEAR_WALL, 1.0, 0.3))):
             value = settle(small, S * x, S * y, 0.5 * v, theta, timeout=20.0)["value"]
