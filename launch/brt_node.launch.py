@@ -5,8 +5,10 @@
     ros2 launch hjrno_ros brt_node.launch.py params_file:=/path/to/brt_node.yaml use_sim_time:=true \
         cmd_vel_in:=cmd_vel_smoothed cmd_vel_out:=cmd_vel map:=map odom:=odom namespace:=robot1
 
-brt_node starts inactive (parameter override ``autostart: False``) and ``lifecycle_manager_brt`` (Nav2's
-nav2_lifecycle_manager) configures and activates it when ``autostart`` is true.  brt_node has no bond
+The launch argument ``autostart`` is the lifecycle manager's, under the name Nav2's bringup gives it:
+``lifecycle_manager_brt`` (Nav2's nav2_lifecycle_manager) configures and activates brt_node when it is true.
+brt_node's own parameter of the same name (plain mode: activate itself) is always overridden to False here, so
+only the manager drives the node.  brt_node has no bond
 (the bond library is not on PyPI), so the manager runs with ``bond_timeout: 0.0``.  The remappings act
 on brt_node's default topic names (cmd_vel_smoothed, cmd_vel, map, odom); a params file that renames
 those topics is used as it is.

@@ -13,9 +13,11 @@ disturbance bounded by a tracking error that grows with speed, ‖d‖ ≤ δ·|
 
 - the **car** (:class:`CarParams`): curvature control, g(v) = v, |u₂| ≤ κ_max.  Named configurations
   :meth:`CarParams.product` (δ = 0.1, d₀ = 0) and :meth:`CarParams.paper` (δ = 0, d₀ = 0.1 m/s: the HJRNO
-  paper's benchmark car, the default, which the reproduction experiments and their models use);
+  paper's benchmark car and ``CarParams()``'s default, kept so that the reproduction experiments, their datasets
+  and ``models/v5`` / ``models/paper_cnn`` do not move; the node's car is :meth:`CarParams.product`);
 - the **differential drive** (:class:`DiffDriveParams`): turn-rate control, g(v) = 1, |u₂| ≤ ω_max, so it
-  turns in place.  Its defaults are the product robot's (δ = 0.1, d₀ = 0: a stopped robot stays stopped).
+  turns in place: the node's default robot and ``models/default``.  Its defaults are the product robot's
+  (δ = 0.1, d₀ = 0: a stopped robot stays stopped).
 
 Arrays: a state is ``(..., n)`` with the last axis in state order, (x, y, v, θ) for the car and
 (x, y, ψ) for Air3D; gradients, controls and disturbances follow the same rule.  SI units.
@@ -68,7 +70,8 @@ def _check_limits(params: Any, kind: str, turn: str) -> None:
 class CarParams:
     """Limits and disturbance bound of the dynamic Dubins car (docs/design.md, "Robot models").
 
-    ``CarParams()`` is the paper's car (:meth:`paper`); :meth:`product` is the product robot.  The
+    ``CarParams()`` is the paper's benchmark car (:meth:`paper`), for the reproduction experiments; :meth:`product`
+    is the product car (``models/car_fno``).  The node's default robot is :class:`DiffDriveParams`.  The
     paper's name ``d_max`` is accepted as a keyword (it means d₀ with δ = 0) and readable while
     δ = 0; with a speed-dependent bound use :func:`disturbance_bound`.
     """

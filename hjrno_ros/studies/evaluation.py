@@ -20,6 +20,7 @@ import numpy as np
 import torch
 
 from hjrno_ros.core.model_card import ModelCard
+from hjrno_ros.core.tables import records_table
 from hjrno_ros.datasets.dataset import load_split
 from hjrno_ros.learning import checkpoint
 from hjrno_ros.learning.slices import InputSpec, param_value
@@ -220,9 +221,7 @@ def record(row: dict, out: str | Path) -> Path:
              "whole table); speedup = solve / infer_ms; table_ms: every slice of a table (slice models: infer_ms "
              "times the slices), table_speedup = solve / table_ms; "
              "test_rms_error: RMS of V_pred − V∞ in the table's units; test_edge_error_share: the part of the squared "
-             f"error within {EDGE_CELLS} cells of the window's edge.", "",
-             "| " + " | ".join(keys) + " |", "|" + " --- |" * len(keys)]
-    lines += ["| " + " | ".join(str(r.get(k, "")) for k in keys) + " |" for r in rows]
+             f"error within {EDGE_CELLS} cells of the window's edge.", "", *records_table(rows, keys)]
     (out / "evaluation.md").write_text("\n".join(lines) + "\n")
     return out / "evaluation.md"
 
@@ -323,9 +322,7 @@ def superresolution(stems: list[str | Path], data: str | Path, factor: int = 3, 
     lines = ["# Zero-shot super-resolution", "",
              f"`hjrno evaluate --superres {factor}` on {test.config.name} test samples: each model, trained at the "
              "base grid, predicts at the fine grid directly (zero-shot) and at the base grid followed by bilinear "
-             "interpolation in x-y (baseline); ground truth solved at the fine grid.", "",
-             "| " + " | ".join(keys) + " |", "|" + " --- |" * len(keys)]
-    lines += ["| " + " | ".join(str(r[k]) for k in keys) + " |" for r in rows]
+             "interpolation in x-y (baseline); ground truth solved at the fine grid.", "", *records_table(rows, keys)]
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "superres.md").write_text("\n".join(lines) + "\n")

@@ -25,6 +25,7 @@ from hjrno_ros.core.model_card import ModelCard
 from hjrno_ros.core.safety_filter import MODES, FilterSettings, filter_batch, sampling_margin
 from hjrno_ros.core.similarity import Dimensionless, Scaling
 from hjrno_ros.core.stop_zone import StopZoneSettings, stop_zone_filter
+from hjrno_ros.core.tables import markdown_table
 from hjrno_ros.core.value_table import ReversingTable, ValueTable
 from hjrno_ros.studies import closed_loop, held_out
 from hjrno_ros.studies.calibration import DEFAULT_MARGIN
@@ -222,9 +223,7 @@ def write_tables(study: dict, out: Path, command: str) -> tuple[Path, Path, Path
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    head = "| " + " | ".join(c[1] for c in COLUMNS) + " |"
-    lines = [head, "|" + " --- |" * len(COLUMNS)]
-    lines += ["| " + " | ".join(fmt.format(r[k]) for k, _, fmt in COLUMNS) + " |" for r in rows]
+    lines = markdown_table([c[1] for c in COLUMNS], ([fmt.format(r[k]) for k, _, fmt in COLUMNS] for r in rows))
     md = [f"# Closed-loop safety filters ({time.strftime('%Y-%m-%d')})", "", f"Command: `{command}`", "",
           f"{len(study['worlds'])} held-out worlds ({', '.join(sorted({w.split('/')[0] for w in study['worlds']}))}), "
           f"{study['episodes_per_world']} episodes each; duration {study['settings']['duration']} s, "

@@ -18,6 +18,7 @@ import numpy as np
 
 from hjrno_ros.core import geometry, least_restrictive, safety_filter
 from hjrno_ros.core.dynamics import CarParams, DiffDriveParams, RobotParams
+from hjrno_ros.core.tables import markdown_table
 from hjrno_ros.core.value_table import ValueTable
 from hjrno_ros.studies.closed_loop import base_step
 
@@ -177,16 +178,16 @@ def run_all(params: RobotParams, scenes: tuple[Scene, ...], out: str | None = No
     from pathlib import Path
 
     table = solve_scene_table(params)
-    lines = [f"# Product scenes ({params})", "",
-             "| scene | mode | problems | min clearance m | final speed m/s | max output speed m/s |",
-             "| --- | --- | --- | --- | --- | --- |"]
+    rows = []
     for scene in scenes:
         for mode in safety_filter.MODES:
             states, outputs = simulate(params, table, safety_filter.FilterSettings(epsilon=epsilon, mode=mode), scene)
             problems = judge(scene, states, outputs)
-            lines.append(f"| {scene.name} | {mode} | {'; '.join(problems) or 'none'} | "
-                         f"{clearance(states[:, :2]).min():.3f} | {states[-1, 2]:.3f} | "
-                         f"{np.abs(outputs[:, 0]).max() if len(outputs) else 0.0:.3f} |")
+            rows.append([scene.name, mode, "; ".join(problems) or "none", f"{clearance(states[:, :2]).min():.3f}",
+                         f"{states[-1, 2]:.3f}", f"{np.abs(outputs[:, 0]).max() if len(outputs) else 0.0:.3f}"])
+    lines = [f"# Product scenes ({params})", "",
+             *markdown_table(["scene", "mode", "problems", "min clearance m", "final speed m/s",
+                              "max output speed m/s"], rows)]
     text = "\n".join(lines) + "\n"
     if out is not None:
         Path(out).mkdir(parents=True, exist_ok=True)

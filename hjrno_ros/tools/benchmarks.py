@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from hjrno_ros.core.tables import records_table
+
 SOLVER_GRIDS = ("32,32,9,16", "40,40,12,20", "50,50,15,24")
 SOLVER_CASES = [(name, grid) for name in ("disk", "room", "indoor") for grid in SOLVER_GRIDS]
 ROBOTS = ("paper", "product")
@@ -141,8 +143,7 @@ def bench_dataset(out: Path, samples: int, families: tuple[str, ...]) -> list[di
 
 def _markdown(title: str, rows: list[dict], note: str) -> str:
     keys = list(rows[0])
-    lines = [f"# {title}", "", note, "", "| " + " | ".join(keys) + " |", "|" + " --- |" * len(keys)]
-    lines += ["| " + " | ".join(str(r.get(k, "")) for k in keys) + " |" for r in rows]
+    lines = [f"# {title}", "", note, "", *records_table(rows, keys)]
     return "\n".join(lines) + "\n"
 
 

@@ -32,6 +32,7 @@ from scipy import ndimage
 from hjrno_ros.core.atomic import atomic_write
 from hjrno_ros.core.geometry import occupancy_signed_distance, occupancy_to_mask
 from hjrno_ros.core.map_file import MapFile, load_map
+from hjrno_ros.core.tables import markdown_table
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_MAP = ROOT.parent / "shared" / "maps" / "depot.yaml"
@@ -196,10 +197,9 @@ def markdown(summary: dict, note: str) -> str:
     keys = ["episodes", "collisions", "exits", "starts_v_le_0", "collisions_from_v_le_0", "min_clearance_m",
             "clearance_p05_m", "mean_distance_m",
             "intervention_rate", "goals_reached", "latency_ms_p50_median", "latency_ms_p95_max"]
-    lines = ["# Depot map check", "", note, "", "| driver | " + " | ".join(keys) + " |",
-             "| --- |" + " --- |" * len(keys)]
-    for name, row in [*summary["per_driver"].items(), ("**all**", summary["totals"])]:
-        lines.append(f"| {name} | " + " | ".join(str(row[k]) for k in keys) + " |")
+    rows = [*summary["per_driver"].items(), ("**all**", summary["totals"])]
+    lines = ["# Depot map check", "", note, "",
+             *markdown_table(["driver", *keys], ([name, *(row[k] for k in keys)] for name, row in rows))]
     return "\n".join(lines) + "\n"
 
 

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from hjrno_ros.core import geometry
+from hjrno_ros.core.tables import markdown_table, records_table
 from hjrno_ros.tools.node_bench import _rss_mb
 from hjrno_ros.tools.node_process import brt_node_process
 
@@ -150,12 +151,11 @@ def run(out: Path, seconds: float = SOAK_S, model: Path | None = None, seed: int
             f"{'met' if sd_2000 <= SD_TARGET_S else 'missed'}) and sample_raster of one 32x32 model window.")
     keys = list(row)
     classes = sorted(sent)
-    lines = ["# Fuzz benchmark", "", note, "", "| " + " | ".join(keys) + " |", "|" + " --- |" * len(keys),
-             "| " + " | ".join(str(row[k]) for k in keys) + " |", "", "Messages by class:", "",
-             "| " + " | ".join(classes) + " |", "|" + " --- |" * len(classes),
-             "| " + " | ".join(str(sent[c]) for c in classes) + " |", "", "Map size:", "",
-             "| cells | extent (m) | signed distance (s) | sample one window (µs) |", "| --- | --- | --- | --- |"]
-    lines += [f"| {r['cells']} | {r['extent_m']} | {r['signed_distance_s']} | {r['sample_window_us']} |" for r in costs]
+    lines = ["# Fuzz benchmark", "", note, "", *records_table([row], keys), "", "Messages by class:", "",
+             *records_table([sent], classes), "", "Map size:", "",
+             *markdown_table(["cells", "extent (m)", "signed distance (s)", "sample one window (µs)"],
+                             ([r["cells"], r["extent_m"], r["signed_distance_s"], r["sample_window_us"]]
+                              for r in costs))]
     if errors:
         lines += ["", "Error lines in the node's log (numbers as #):", ""]
         lines += [f"- {n} × `{k.strip()}`" for k, n in sorted(errors.items(), key=lambda kv: -kv[1])]

@@ -29,6 +29,7 @@ import numpy as np
 
 from hjrno_ros.core.atomic import atomic_write
 from hjrno_ros.core.safety_filter import FilterSettings
+from hjrno_ros.core.tables import records_table
 from hjrno_ros.studies import navigation as nav
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -208,7 +209,5 @@ def markdown(report: dict) -> str:
              "those the unfiltered driver reaches in episodes without collision; time to goal: against the "
              "unfiltered run, over the goals both reached.  Shares are of 50 ms steps.  Runs: "
              + "; ".join(f"{d} `{c}` ({e} episodes per case)" for d, c, e in runs) + ".", "",
-             "| " + " | ".join(cols) + " |", "|" + " --- |" * len(cols)]
-    for r in report["rows"]:
-        lines.append("| " + " | ".join("" if r[c] is None else str(r[c]) for c in cols) + " |")
+             *records_table(report["rows"], cols, blank_none=True)]
     return "\n".join(lines) + "\n"

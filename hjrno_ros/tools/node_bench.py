@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hjrno_ros.core.tables import records_table
 from hjrno_ros.tools.node_process import brt_node_process, free_domain
 
 RESOLUTION = 0.05  # m
@@ -142,8 +143,7 @@ def run(out: Path, seconds: float = 30.0, model: Path | None = None) -> int:
             f"bypassed via ~/enable ({min(10.0, seconds / 3):g} s after the main run): the rclpy + DDS baseline. "
             "The driver shares the cores.")
     keys = list(row)
-    lines = ["# Node benchmark", "", note, "", "| " + " | ".join(keys) + " |", "|" + " --- |" * len(keys),
-             "| " + " | ".join(str(row[k]) for k in keys) + " |"]
+    lines = ["# Node benchmark", "", note, "", *records_table([row], keys)]
     (out / "node.md").write_text("\n".join(lines) + "\n")
     (out / "node.json").write_text(json.dumps({"machine": machine, "note": note, "rows": [row],
                                                "final_status": status}, indent=1))

@@ -300,7 +300,7 @@ class BrtNode(LifecycleNode):
         return "", data
 
     def _speed_check(self, state: RobotState) -> tuple[float | None, str]:
-        p, tol = self.vf.params, self.config["speed_tolerance"]
+        p, tol = self.vf.params, self.config.speed_tolerance
         if not p.v_min - tol <= state.v <= p.v_max + tol:
             return None, f"speed {state.v:.4g} m/s outside the model's range [{p.v_min:g}, {p.v_max:g}] m/s"
         return state.v, ""
@@ -371,7 +371,7 @@ class BrtNode(LifecycleNode):
         if not (self.active and self.enabled) or last is None:
             return
         now = time.monotonic()
-        if now - last[0] > self.config["stop_pub_timeout"]:
+        if now - last[0] > self.config.stop_pub_timeout:
             return
         reason, _ = self.check(now)
         if reason:
@@ -388,7 +388,7 @@ class BrtNode(LifecycleNode):
 
     # ------------------------------------------------------------------ outputs
     def _publish_value(self, values: np.ndarray, info: dict, m: MapData, state: RobotState) -> None:
-        grid, arr = messages.value_messages(values, info, state.stamp_ns, m.stamp, self.config["value_clip"])
+        grid, arr = messages.value_messages(values, info, state.stamp_ns, m.stamp, self.config.value_clip)
         self.io.grid.publish(grid)
         self.io.value.publish(arr)
 
@@ -424,7 +424,7 @@ class BrtNode(LifecycleNode):
 
     def _present_decision(self, now: float, data: dict[str, Any]) -> safety_filter.Decision | None:
         """What the filter would do now with the last nominal command, if one came within stop_pub_timeout."""
-        recent = self._last_cmd is not None and now - self._last_cmd[0] <= self.config["stop_pub_timeout"]
+        recent = self._last_cmd is not None and now - self._last_cmd[0] <= self.config.stop_pub_timeout
         if not recent or self._last_nominal is None or "value" not in data:
             return None
         return self._decide(data, self._last_nominal)
@@ -435,7 +435,7 @@ class BrtNode(LifecycleNode):
         refined = val.source == "refined" and val.horizon >= self.refined_from
         settings = self.refined_settings if refined else self.settings
         if settings.mode == "least_restrictive":
-            delay = max(time.monotonic() - state.received, 0.0) + self.config["command_latency"]
+            delay = max(time.monotonic() - state.received, 0.0) + self.config.command_latency
             return least_restrictive.decide(p, settings, self.certificate(data, settings.epsilon),
                                             state.vector(p.v_min, p.v_max), *nominal, self._last_output, delay)
         s = table_state(state, val.theta, p.v_min, p.v_max)
@@ -457,7 +457,7 @@ class BrtNode(LifecycleNode):
     def _publish_diagnostics(self) -> None:
         if not self.active:
             return
-        found = messages.command_type_mismatch(self, self.config["cmd_vel_in_topic"], self.config["cmd_vel_out_topic"],
+        found = messages.command_type_mismatch(self, self.config.cmd_vel_in_topic, self.config.cmd_vel_out_topic,
                                                self._stamped)
         if found and found != self.type_mismatch:
             self.get_logger().warning("command type mismatch: " + "; ".join(found))

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
-from hjrno_ros.core import safety_filter
+from hjrno_ros.core import safety_filter, tables
 from hjrno_ros.core.dynamics import CAR_MODEL, DIFF_DRIVE_MODEL, RobotParams
 from hjrno_ros.core.model_card import ModelCard
 
@@ -209,11 +209,11 @@ def refined_filter_settings(card: ModelCard, settings: safety_filter.FilterSetti
 
 def markdown_table() -> str:
     """The parameter table of docs/node.md."""
-    rows = ["| name | default | range | live | description |", "| --- | --- | --- | --- | --- |"]
+    rows = []
     for name, p in PARAMETERS.items():
         default = f'"{p.default}"' if isinstance(p.default, str) else str(p.default).lower() \
             if isinstance(p.default, bool) else repr(p.default)
         span = f"{p.lo:g} .. {p.hi:g}" if p.lo is not None else ""
-        rows.append(f"| `{name}` | `{default}` | {span} | {'no' if p.read_only else 'yes'} | "
-                    f"{p.description.replace('|', '/')} |")
-    return "\n".join(rows) + "\n"
+        live = "no" if p.read_only else "yes"
+        rows.append([f"`{name}`", f"`{default}`", span, live, p.description.replace("|", "/")])
+    return "\n".join(tables.markdown_table(["name", "default", "range", "live", "description"], rows)) + "\n"

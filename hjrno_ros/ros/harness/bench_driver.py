@@ -15,6 +15,7 @@ from std_msgs.msg import String
 from std_srvs.srv import SetBool
 
 from hjrno_ros.ros.brt_node.messages import LATCHED, occupancy_message, odometry_message
+from hjrno_ros.ros.harness.commands import StampedCommands
 from hjrno_ros.ros.harness.spin import spin_in_background
 
 NODE_NAME = "brt_node"
@@ -37,7 +38,7 @@ class BenchDriver(Node):
         self.map_pub = self.create_publisher(OccupancyGrid, "map", qos)
         self.odom_pub = self.create_publisher(Odometry, "odom", 10)
         self.cmd_pub = self.create_publisher(TwistStamped, "cmd_vel_smoothed", 10)
-        self.sent: dict[tuple[int, int], float] = {}
+        self.commands = StampedCommands(self, self.cmd_pub)
         self.cmd_latency: list[float] = []  # s
         self.map_sent: dict[tuple[int, int], float] = {}
         self.map_latency: list[float] = []  # s
@@ -68,17 +69,12 @@ class BenchDriver(Node):
     def _cmd(self) -> None:
         if not self.sending:
             return
-        msg = TwistStamped()
-        msg.header.frame_id = "base_link"
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.twist.linear.x, msg.twist.angular.z = float(self.speed), 0.1
-        self.sent[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = time.perf_counter()
-        self.cmd_pub.publish(msg)
+        self.commands.send(np.array([self.speed, 0.1]))
 
     def _on_out(self, msg: TwistStamped) -> None:
-        sent = self.sent.pop((msg.header.stamp.sec, msg.header.stamp.nanosec), None)
-        if sent is not None:
-            self.cmd_latency.append(time.perf_counter() - sent)
+        _, latency, _ = self.commands.answer(msg)
+        if latency is not None:
+            self.cmd_latency.append(latency)
 
     def _on_grid(self, msg: OccupancyGrid) -> None:
         sent = self.map_sent.pop((msg.info.map_load_time.sec, msg.info.map_load_time.nanosec), None)
@@ -123,7 +119,8 @@ def bench_drive(domain_id: int, maps: list[np.ndarray], resolution: float, origi
         if on_done is not None:
             on_done()
         time.sleep(0.5)  # let the last outputs arrive
-        result = {"cmd_latency_s": list(driver.cmd_latency), "cmd_sent": len(driver.cmd_latency) + len(driver.sent),
+        sent = len(driver.cmd_latency) + driver.commands.unanswered
+        result = {"cmd_latency_s": list(driver.cmd_latency), "cmd_sent": sent,
                   "map_latency_s": list(driver.map_latency), "maps_sent": k - 1, "status": dict(driver.status),
                   "bypass_latency_s": [], "bypass_sent": 0, "first_status_at": driver.first_status,
                   "ready_at": ready_at}
@@ -135,13 +132,13 @@ def bench_drive(domain_id: int, maps: list[np.ndarray], resolution: float, origi
             while not future.done() and time.monotonic() < end:
                 time.sleep(0.01)
             driver.cmd_latency.clear()
-            driver.sent.clear()
+            driver.commands.forget()
             driver.sending = True
             time.sleep(bypass_seconds)
             driver.sending = False
             time.sleep(0.5)
             result["bypass_latency_s"] = list(driver.cmd_latency)
-            result["bypass_sent"] = len(driver.cmd_latency) + len(driver.sent)
+            result["bypass_sent"] = len(driver.cmd_latency) + driver.commands.unanswered
         return result
     finally:
         stop()

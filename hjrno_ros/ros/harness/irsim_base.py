@@ -22,6 +22,7 @@ from nav_msgs.msg import OccupancyGrid
 from rclpy.node import Node
 
 from hjrno_ros.ros.brt_node.messages import occupancy_message, odometry_message
+from hjrno_ros.ros.harness.commands import StampedCommands, unsafe_grid
 from hjrno_ros.ros.harness.spin import base_topics, drive_base
 from hjrno_ros.studies.navigation import STOPPED_SPEED, STOPPED_TURN, EpisodeResult, GoalDriver, NavMap
 
@@ -49,9 +50,9 @@ class IrSimBase(Node):
         self.running = False
         self.t0 = time.monotonic()
         self._filtered, self._filtered_at = np.zeros(2), -math.inf
-        self._sent: dict[tuple[int, int], tuple[float, np.ndarray]] = {}
         self._changed = False
         self.map_pub, self.odom_pub, self.cmd_pub = base_topics(self, self._on_cmd, self._on_grid)
+        self.commands = StampedCommands(self, self.cmd_pub, keep=100)
         grid = occupancy_message(nav_map.occupancy(), nav_map.resolution, nav_map.origin)
         grid.header.stamp = self.get_clock().now().to_msg()
         self.map_pub.publish(grid)
@@ -88,30 +89,19 @@ class IrSimBase(Node):
         if self.direct:
             self._filtered, self._filtered_at, self._changed = nominal, time.monotonic(), False
             return
-        msg = TwistStamped()
-        msg.header.frame_id = "base_link"
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.twist.linear.x, msg.twist.angular.z = float(nominal[0]), float(nominal[1])
-        self._sent[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = (time.perf_counter(), nominal)
-        if len(self._sent) > 100:
-            self._sent.pop(next(iter(self._sent)))
-        self.cmd_pub.publish(msg)
+        self.commands.send(nominal)
 
     def _on_cmd(self, msg: TwistStamped) -> None:
-        self._filtered = np.array([msg.twist.linear.x, msg.twist.angular.z])
+        self._filtered, latency, changed = self.commands.answer(msg)
         self._filtered_at = time.monotonic()
-        sent = self._sent.pop((msg.header.stamp.sec, msg.header.stamp.nanosec), None)
-        if sent is None:  # the node's fail-closed timer: a stop that answers no command
+        if latency is None:  # the node's fail-closed timer: a stop that answers no command
             return
-        self.log.latency_s.append(time.perf_counter() - sent[0])
-        self._changed = bool(np.abs(self._filtered - sent[1]).max() > 1e-6)
+        self.log.latency_s.append(latency)
+        self._changed = changed
         self.log.changed += self.running and self._changed
 
     def _on_grid(self, msg: OccupancyGrid) -> None:
-        from hjrno_ros.ros.brt_node.messages import occupancy_array
-
-        origin = (msg.info.origin.position.x, msg.info.origin.position.y)
-        self.log.grids.append((self.now(), origin, msg.info.resolution, occupancy_array(msg) >= 100))
+        self.log.grids.append(unsafe_grid(msg, self.now()))
 
     def result(self) -> EpisodeResult:
         """The episode as the lockstep runner reports it."""

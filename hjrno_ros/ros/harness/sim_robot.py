@@ -22,7 +22,8 @@ from rclpy.node import Node
 
 from hjrno_ros.core.dynamics import RobotParams
 from hjrno_ros.core.geometry import union_sdf
-from hjrno_ros.ros.brt_node.messages import occupancy_array, occupancy_message, odometry_message
+from hjrno_ros.ros.brt_node.messages import occupancy_message, odometry_message
+from hjrno_ros.ros.harness.commands import StampedCommands, unsafe_grid
 from hjrno_ros.ros.harness.spin import base_topics, drive_base
 from hjrno_ros.studies import closed_loop
 from hjrno_ros.studies.closed_loop import EpisodeSettings
@@ -60,9 +61,9 @@ class SimRobot(Node):
         self.t0 = time.monotonic()
         self._filtered = np.zeros(2)
         self._filtered_at = -math.inf
-        self._sent: dict[tuple[int, int], tuple[float, np.ndarray]] = {}
         self._intervened = False
         self.map_pub, self.odom_pub, self.cmd_pub = base_topics(self, self._on_cmd, self._on_grid)
+        self.commands = StampedCommands(self, self.cmd_pub)
         grid = occupancy_message(occupancy, resolution, origin)
         grid.header.stamp = self.get_clock().now().to_msg()
         self.map_pub.publish(grid)
@@ -112,32 +113,24 @@ class SimRobot(Node):
             return
         nominal = closed_loop.nominal_twist(self.params, self.x, self.goals[self.goal_index][None],
                                             np.array(["goal"]))[0]
-        msg = TwistStamped()
-        msg.header.frame_id = "base_link"
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.twist.linear.x, msg.twist.angular.z = float(nominal[0]), float(nominal[1])
         self.log.commands += 1
         if self.direct:
             self._filtered, self._filtered_at = nominal, time.monotonic()
         else:
-            self._sent[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = (time.perf_counter(), nominal)
-            self.cmd_pub.publish(msg)
+            self.commands.send(nominal)
 
     def _on_cmd(self, msg: TwistStamped) -> None:
-        self._filtered = np.array([msg.twist.linear.x, msg.twist.angular.z])
+        self._filtered, latency, changed = self.commands.answer(msg)
         self._filtered_at = time.monotonic()
-        sent = self._sent.pop((msg.header.stamp.sec, msg.header.stamp.nanosec), None)
-        if sent is None:  # a fail-closed stop of the node's own timer
+        if latency is None:  # a fail-closed stop of the node's own timer
             self._intervened = True
             return
-        self.log.latency_s.append(time.perf_counter() - sent[0])
-        self._intervened = bool(np.abs(self._filtered - sent[1]).max() > 1e-6)
+        self.log.latency_s.append(latency)
+        self._intervened = changed
         self.log.interventions += self._intervened
 
     def _on_grid(self, msg: OccupancyGrid) -> None:
-        cost = occupancy_array(msg)
-        origin = (msg.info.origin.position.x, msg.info.origin.position.y)
-        self.log.grids.append((self.now(), origin, msg.info.resolution, cost >= 100))
+        self.log.grids.append(unsafe_grid(msg, self.now()))
 
 
 def drive(domain: int, robot_args: dict, seconds: float, ready: Callable[[Log], bool],
