@@ -292,7 +292,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from hjrno_ros.tools import benchmarks
 
     return benchmarks.dispatch(args.what, Path(args.out), quick=args.quick, only=args.only, model=args.model,
-                               episodes=args.episodes, seconds=args.seconds,
+                               episodes=args.episodes, seconds=args.seconds, scan_rate=args.scan_rate,
                                select={k: getattr(args, k) for k in ("robots", "maps", "drivers", "filters")})
 
 
@@ -482,6 +482,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", default=None, help="node, depot and nav benches: model stem (default: models/default)")
     p.add_argument("--seconds", type=float, default=None, help="fuzz: seconds (180); depot, nav: per episode")
     p.add_argument("--episodes", type=int, default=None, help="depot: episodes (200); nav: per case (3)")
+    p.add_argument("--scan-rate", type=float, default=0.0,
+                   help="node bench: also send LaserScans at this rate, Hz, as an observation source (default: none)")
     for name in ("robots", "maps", "drivers", "filters"):  # nav_bench.ROBOTS, MAPS, DRIVERS, FILTERS
         p.add_argument(f"--{name}", default=None, help=f"nav bench: comma-separated {name} (default: all)")
     p.set_defaults(func=cmd_bench)

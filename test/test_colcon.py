@@ -70,7 +70,7 @@ def test_colcon_build_installs_a_runnable_brt_node(tmp_path):
         assert (share / "models" / model_file.name).is_file(), model_file
     assert not list((share / "models").glob("*.train.*"))  # training state is not installed
     site = prefix / "lib" / PY / "site-packages"
-    assert (site / "hjrno_ros" / "ros" / "node.py").is_file()
+    assert (site / "hjrno_ros" / "ros" / "brt_node" / "node.py").is_file()
 
     model = model_for_startup(tmp_path)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(site), os.environ.get("PYTHONPATH", "")]),

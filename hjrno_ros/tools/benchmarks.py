@@ -147,12 +147,14 @@ def _markdown(title: str, rows: list[dict], note: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def run(what: str, out: Path, quick: bool = False, only: tuple[str, ...] = (), model: str | None = None) -> int:
+def run(what: str, out: Path, quick: bool = False, only: tuple[str, ...] = (), model: str | None = None,
+        scan_rate: float = 0.0) -> int:
     out.mkdir(parents=True, exist_ok=True)
     if what == "node":
         from hjrno_ros.tools import node_bench
 
-        return node_bench.run(out, seconds=10.0 if quick else 30.0, model=Path(model) if model else None)
+        return node_bench.run(out, seconds=10.0 if quick else 30.0, model=Path(model) if model else None,
+                              scan_rate=scan_rate)
     if model:
         raise ValueError("--model is for the node benchmark only")
     if what == "dataset":
@@ -209,7 +211,8 @@ def write_table(out: Path, stem: str, title: str, rows: list[dict], note: str) -
 
 
 def dispatch(what: str, out: Path, quick: bool = False, only: str | None = None, model: str | None = None,
-             episodes: int | None = None, seconds: float | None = None, select: dict | None = None) -> int:
+             episodes: int | None = None, seconds: float | None = None, select: dict | None = None,
+             scan_rate: float = 0.0) -> int:
     """``hjrno bench WHAT``: the depot check, the navigation benchmark and the fuzz soak (each its own module), or
     :func:`run`'s benches.  ``select``: the navigation benchmark's robots, maps, drivers and filters."""
     if what == "nav":
@@ -227,4 +230,6 @@ def dispatch(what: str, out: Path, quick: bool = False, only: str | None = None,
 
         return fuzz_bench.run(out, seconds=fuzz_bench.SOAK_S if seconds is None else seconds,
                               model=Path(model) if model else None)
-    return run(what, out, quick=quick, only=tuple(only.split(",")) if only else (), model=model)
+    if scan_rate and what != "node":
+        raise ValueError("--scan-rate is for the node benchmark only")
+    return run(what, out, quick=quick, only=tuple(only.split(",")) if only else (), model=model, scan_rate=scan_rate)

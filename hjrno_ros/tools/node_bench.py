@@ -42,6 +42,7 @@ POSE = (0.0, 0.0, 0.3)  # x, y, yaw of the robot: free space, > 2 m from everyth
 SPEED = 0.5  # m/s
 CMD_TARGET_MS = 5.0
 MAP_TARGET_MS = 150.0
+SCAN_TARGET_MS = 60.0
 
 
 def bench_maps(count: int = 3) -> list[np.ndarray]:
@@ -77,8 +78,9 @@ def _percentile_ms(values: list[float], q: float) -> float | None:
     return round(float(np.percentile(np.asarray(values) * 1e3, q)), 2) if values else None
 
 
-def run(out: Path, seconds: float = 30.0, model: Path | None = None) -> int:
-    """Benchmark a brt_node process for ``seconds`` of driving; print a table, write node.md/node.json."""
+def run(out: Path, seconds: float = 30.0, model: Path | None = None, scan_rate: float = 0.0) -> int:
+    """Benchmark a brt_node process for ``seconds`` of driving; print a table, write node.md/node.json
+    (``scan_rate`` > 0: with a LaserScan source at that rate, Hz, written to node_scan.md/json)."""
     from hjrno_ros.ros.harness.bench_driver import bench_drive  # rclpy only when the benchmark runs
 
     if not seconds > 0:
@@ -87,7 +89,10 @@ def run(out: Path, seconds: float = 30.0, model: Path | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     domain = free_domain()
     spawned = time.monotonic()
-    with brt_node_process(domain, {"enable_stamped_cmd_vel": True}, model) as (proc, log_tail):
+    params = {"enable_stamped_cmd_vel": True}
+    if scan_rate > 0:
+        params.update({"observation_sources": "[scan]", "obstacle_speed_max": 0.0})
+    with brt_node_process(domain, params, model) as (proc, log_tail):
         marks: dict[str, float] = {}
 
         def on_ready() -> None:
@@ -100,7 +105,7 @@ def run(out: Path, seconds: float = 30.0, model: Path | None = None) -> int:
         try:
             raw = bench_drive(domain, bench_maps(), RESOLUTION, ORIGIN, POSE, SPEED, seconds,
                               bypass_seconds=min(10.0, seconds / 3), on_ready=on_ready, on_done=on_done,
-                              alive=lambda: proc.poll() is None)
+                              alive=lambda: proc.poll() is None, scan_rate=scan_rate)
             cpu_share = (marks["cpu1"] - marks["cpu0"]) / (marks["wall1"] - marks["wall0"])
             peak = _rss_mb(proc.pid)
         except RuntimeError as err:
@@ -124,6 +129,9 @@ def run(out: Path, seconds: float = 30.0, model: Path | None = None) -> int:
         "node_cpu_share": round(cpu_share, 3),
         "node_idle_rss_MB": round(marks["idle_rss"]),
         "node_peak_rss_MB": round(peak),
+        **({"scan_rate_hz": scan_rate,
+            "scan_to_table_p50_ms": (status.get("observation_to_table_ms") or {}).get("p50"),
+            "scan_to_table_p95_ms": (status.get("observation_to_table_ms") or {}).get("p95")} if scan_rate > 0 else {}),
         "load_avg_1m": round(os.getloadavg()[0], 2),  # other work on the machine inflates the tails
         "cmd_target_met": bool(cmd_lat) and _percentile_ms(cmd_lat, 95) <= CMD_TARGET_MS,
         "map_target_met": bool(map_lat) and _percentile_ms(map_lat, 95) <= MAP_TARGET_MS,
@@ -141,13 +149,17 @@ def run(out: Path, seconds: float = 30.0, model: Path | None = None) -> int:
             "peak RSS includes start-up; callback_p95_ms is the time "
             "inside the node's command callback (last 200 commands); bypass_* is the same node with the filter "
             f"bypassed via ~/enable ({min(10.0, seconds / 3):g} s after the main run): the rclpy + DDS baseline. "
-            "The driver shares the cores.")
+            "The driver shares the cores."
+            + (f" With a LaserScan observation source at {scan_rate:g} Hz (720 beams, walls and a person who moves): "
+               "scan_to_table_* is the node's own time from a scan's receipt to the value table made with it, over "
+               f"the last 200 scans (target p95 <= {SCAN_TARGET_MS:g} ms)." if scan_rate > 0 else ""))
     keys = list(row)
     lines = ["# Node benchmark", "", note, "", *records_table([row], keys)]
-    (out / "node.md").write_text("\n".join(lines) + "\n")
-    (out / "node.json").write_text(json.dumps({"machine": machine, "note": note, "rows": [row],
+    name = "node_scan" if scan_rate > 0 else "node"
+    (out / f"{name}.md").write_text("\n".join(lines) + "\n")
+    (out / f"{name}.json").write_text(json.dumps({"machine": machine, "note": note, "rows": [row],
                                                "final_status": status}, indent=1))
     width = max(map(len, keys))
     print("\n".join(f"{k:<{width}}  {row[k]}" for k in keys))
-    print(f"wrote {out / 'node.md'}")
+    print(f"wrote {out / (name + '.md')}")
     return 0

@@ -11,6 +11,7 @@ import dataclasses
 from collections.abc import Mapping
 from typing import Any
 
+from hjrno_ros.ros.brt_node.observation_sources import SourceConfig
 from hjrno_ros.ros.brt_node.parameters import PARAMETERS, normalise, validate
 
 
@@ -62,6 +63,8 @@ class NodeConfig:
     costmap_threshold: int = _default("costmap_threshold")
     unknown_is_obstacle: bool = _default("unknown_is_obstacle")
     inflation_radius: float = _default("inflation_radius")
+    observation_sources: list = dataclasses.field(default_factory=list)
+    obstacle_speed_max: float = _default("obstacle_speed_max")
     # The value worker and input validity.
     inference_rate: float = _default("inference_rate")
     recenter_distance: float = _default("recenter_distance")
@@ -74,17 +77,36 @@ class NodeConfig:
     refine_cpus: int = _default("refine_cpus")
     refine_epsilon: float = _default("refine_epsilon")
 
+    # The observation sources' own parameters (``<name>.type``, ...), one SourceConfig per observation_sources name.
+    sources: tuple[SourceConfig, ...] = ()
+
     @classmethod
-    def build(cls, values: Mapping[str, Any], startup: bool = False) -> NodeConfig | str:
-        """The config for ``values`` (every name of PARAMETERS; integers accepted for floats), or one line
-        saying why they are unusable.  ``startup``: the card's epsilon (-1) is allowed."""
+    def build(cls, values: Mapping[str, Any], startup: bool = False,
+              sources: Mapping[str, Mapping[str, Any]] | None = None) -> NodeConfig | str:
+        """The config for ``values`` (every name of PARAMETERS; integers accepted for floats) and each observation
+        source's ``{key: value}`` (keys of SOURCE_PARAMETERS), or one line saying why they are unusable.
+        ``startup``: the card's epsilon (-1) is allowed."""
         cfg, problem = normalise(dict(values))
         problem = problem or validate(cfg, startup=startup)
-        return problem if problem else cls(**{name: cfg[name] for name in PARAMETERS})
+        if problem:
+            return problem
+        names = list(cfg["observation_sources"])
+        if len(set(names)) != len(names):
+            return f"observation_sources names a source twice: {names}"
+        built = [SourceConfig.build(name, dict((sources or {}).get(name, {}))) for name in names]
+        problem = next((b for b in built if isinstance(b, str)), None)
+        if problem:
+            return problem
+        return cls(**{name: cfg[name] for name in PARAMETERS}, sources=tuple(built))
 
     def with_values(self, changes: Mapping[str, Any], startup: bool = False) -> NodeConfig | str:
-        """This config with ``changes`` applied (a live parameter update), or why that set is unusable."""
-        return NodeConfig.build({**dataclasses.asdict(self), **changes}, startup=startup)
+        """This config with ``changes`` applied (a live parameter update; the sources are read-only), or why that
+        set is unusable."""
+        cfg, problem = normalise({**self.as_dict(), **changes})
+        problem = problem or validate(cfg, startup=startup)
+        return problem if problem else dataclasses.replace(self, **{name: cfg[name] for name in changes
+                                                                     if name in PARAMETERS})
 
     def as_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        """The PARAMETERS values (the sources' own parameters apart)."""
+        return {name: getattr(self, name) for name in PARAMETERS}

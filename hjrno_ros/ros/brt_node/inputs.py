@@ -25,6 +25,7 @@ from hjrno_ros.ros.brt_node.messages import finite, occupancy_array, planar_yaw
 
 MAP_YAW_TOLERANCE = 1e-3  # rad: only axis-aligned maps are supported
 Pose2 = tuple[float, float, float]  # (x, y, yaw)
+ODOM_MATCH_NS = 200_000_000  # a scan is placed with the odometry sample nearest its stamp, if within 0.2 s
 
 
 class MapRejected(ValueError):
@@ -215,8 +216,8 @@ class StateInput:
         sample = OdomSample(float(p.x), float(p.y), yaw, float(v), msg.header.frame_id, _stamp_ns(msg.header),
                             time.monotonic())
         self.odom = sample
+        self._history.append(sample)  # for a pose's or a scan's time
         if self.pose_topic:
-            self._history.append(sample)
             fix = self.fix
             if fix is not None and fix.odom is None:  # pose came first: anchor dead reckoning here
                 self.fix = dataclasses.replace(fix, odom=(sample.x, sample.y, sample.yaw))
@@ -236,6 +237,18 @@ class StateInput:
             odom = (nearest.x, nearest.y, nearest.yaw)
         self.fix = PoseFix((float(p.x), float(p.y), yaw), odom, msg.header.frame_id, time.monotonic())
         return True
+
+    def pose_at(self, stamp_ns: int, state: RobotState) -> Pose2 | None:
+        """The map-frame pose at ``stamp_ns`` (a scan's stamp): ``state``'s pose moved back by the odometry's motion
+        since then; None without an odometry sample within ODOM_MATCH_NS of that time."""
+        history, now = list(self._history), self.odom
+        if not history or now is None:
+            return None
+        then = min(history, key=lambda s: abs(s.stamp_ns - stamp_ns))
+        if abs(then.stamp_ns - stamp_ns) > ODOM_MATCH_NS:
+            return None
+        back = compose(inverse((now.x, now.y, now.yaw)), (then.x, then.y, then.yaw))
+        return compose((state.x, state.y, state.theta), back)
 
     def get(self, now: float, timeout: float, map_frame: str | None) -> tuple[RobotState | None, str]:
         odom = self.odom

@@ -11,6 +11,7 @@ from geometry_msgs.msg import PoseWithCovarianceStamped, Twist, TwistStamped
 from nav_msgs.msg import OccupancyGrid, Odometry
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import LaserScan
 from std_msgs.msg import Float32MultiArray, String
 from std_srvs.srv import SetBool
 
@@ -20,13 +21,15 @@ from hjrno_ros.ros.brt_node.messages import LATCHED
 
 
 class Interfaces:
-    """``callbacks``: map, odom, pose, cmd, control, status, diagnostics, enable."""
+    """``callbacks``: map, odom, pose, cmd, control, status, diagnostics, enable; ``sources``: one callback per
+    observation source's name (LaserScan with sensor-data QoS, a costmap reliable + transient local)."""
 
-    def __init__(self, node: Any, cfg: NodeConfig, callbacks: dict[str, Callable[..., Any]]) -> None:
+    def __init__(self, node: Any, cfg: NodeConfig, callbacks: dict[str, Callable[..., Any]],
+                 sources: dict[str, Callable[..., Any]] | None = None) -> None:
         self._node, self._made = node, []
         cmd_type = TwistStamped if cfg.enable_stamped_cmd_vel else Twist
         cmd_group = MutuallyExclusiveCallbackGroup()  # command in/out and the stop timer: one cmd_vel writer
-        state_group, map_group, misc_group = (MutuallyExclusiveCallbackGroup() for _ in range(3))
+        state_group, map_group, misc_group, source_group = (MutuallyExclusiveCallbackGroup() for _ in range(4))
         pub, sub, timer = node.create_publisher, node.create_subscription, node.create_timer
         self.cmd = self._keep(node.destroy_publisher, pub(cmd_type, cfg.cmd_vel_out_topic, 10))
         self.grid = self._keep(node.destroy_publisher, pub(OccupancyGrid, cfg.value_grid_topic, LATCHED))
@@ -40,6 +43,10 @@ class Interfaces:
             subscriptions.append((PoseWithCovarianceStamped, cfg.pose_topic, "pose", LATCHED, state_group))
         for kind, topic, name, qos, group in subscriptions:
             self._keep(node.destroy_subscription, sub(kind, topic, callbacks[name], qos, callback_group=group))
+        for source in cfg.sources:  # their own group: a scan's parsing never waits behind a map's
+            kind, qos = (LaserScan, qos_profile_sensor_data) if source.type == "scan" else (OccupancyGrid, LATCHED)
+            self._keep(node.destroy_subscription, sub(kind, source.topic, (sources or {})[source.name], qos,
+                                                      callback_group=source_group))
         self.control_timer = self._keep(node.destroy_timer, timer(cfg.control_period, callbacks["control"],
                                                                   callback_group=cmd_group))
         for period, name in ((status.STATUS_PERIOD, "status"), (status.DIAGNOSTICS_PERIOD, "diagnostics")):

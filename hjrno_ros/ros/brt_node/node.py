@@ -26,6 +26,7 @@ import numpy as np
 from geometry_msgs.msg import PoseWithCovarianceStamped, Twist, TwistStamped
 from nav_msgs.msg import OccupancyGrid, Odometry
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.exceptions import ParameterUninitializedException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
@@ -37,6 +38,7 @@ from hjrno_ros.ros.brt_node import messages, parameters, status
 from hjrno_ros.ros.brt_node.config import NodeConfig
 from hjrno_ros.ros.brt_node.inputs import MapData, MapInput, RobotState, StateInput
 from hjrno_ros.ros.brt_node.interfaces import Interfaces
+from hjrno_ros.ros.brt_node.observation_sources import SOURCE_PARAMETERS, ObservationSource
 from hjrno_ros.ros.brt_node.refinement import Refinement
 from hjrno_ros.ros.brt_node.value_sources import load_model
 from hjrno_ros.ros.brt_node.value_worker import ValueWorker, table_state
@@ -63,13 +65,23 @@ class BrtNode(LifecycleNode):
         self.startup_error = ""
         self.type_mismatch: list[str] = []
         for name, spec in parameters.PARAMETERS.items():
-            self.declare_parameter(name, spec.default, spec.descriptor())
+            self.declare_parameter(name, spec.declared_default(), spec.descriptor())
+        for source in self._value("observation_sources") or []:  # read-only: known from the start
+            for key, spec in SOURCE_PARAMETERS.items():
+                self.declare_parameter(f"{source}.{key}", spec.declared_default(), spec.descriptor())
         self.config = NodeConfig()  # the declared defaults until configure reads the parameters
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
         change = getattr(self, "_service_change_state", None)
         if change is not None:
             change.callback = self._refusing(change.callback)
+
+    def _value(self, name: str) -> Any:
+        """A parameter's value; None for one declared by type and never set (an empty list's default)."""
+        try:
+            return self.get_parameter(name).value
+        except ParameterUninitializedException:
+            return None
 
     def _refusing(self, change_state: Callable[[Any, Any], Any]) -> Callable[[Any, Any], Any]:
         """The change_state service answering a transition that does not exist from the present state (activate
@@ -140,12 +152,14 @@ class BrtNode(LifecycleNode):
         self.stop()
         self._destroy_interfaces()
         self.configured = False
-        for name in ("values", "maps", "states", "vf", "card"):
+        for name in ("values", "maps", "sources", "states", "vf", "card"):
             self.__dict__.pop(name, None)
 
     # ------------------------------------------------------------------ set-up
     def _configure(self) -> None:
-        cfg = NodeConfig.build({name: self.get_parameter(name).value for name in parameters.PARAMETERS}, startup=True)
+        cfg = NodeConfig.build({name: self._value(name) for name in parameters.PARAMETERS}, startup=True,
+                               sources={name: {key: self._value(f"{name}.{key}") for key in SOURCE_PARAMETERS}
+                                        for name in self._value("observation_sources") or []})
         if isinstance(cfg, str):
             raise StartupError(cfg)
         self.config = cfg
@@ -155,6 +169,7 @@ class BrtNode(LifecycleNode):
             raise StartupError(str(err)) from None
         self._apply_settings(cfg)
         self.maps = MapInput(cfg.map_topic)
+        self.sources = [ObservationSource(source) for source in cfg.sources]  # like the map: kept across activations
         self._reset()
         self._create_interfaces(cfg)
         self.configured = True
@@ -182,16 +197,17 @@ class BrtNode(LifecycleNode):
                                  int(cfg.refine_cpus), from_target=self.card.kind == "solver")
                       if cfg.refine_horizon > 0 else None)
         self.values = ValueWorker(self.vf, self.maps, self.states, lambda: self.config, self._publish_value, self._log,
-                                  refinement)
+                                  refinement, self.sources)
 
     def _create_interfaces(self, cfg: NodeConfig) -> None:
         self._stamped = bool(cfg.enable_stamped_cmd_vel)
+        sources = {s.config.name: self._guard(self._on_source(s)) for s in self.sources}
         self.io = Interfaces(self, cfg, {"map": self._guard(self._on_map), "odom": self._guard(self._on_odom),
                                          "pose": self._guard(self._on_pose), "cmd": self._on_cmd,
                                          "control": self._guard(self._on_control_timer),
                                          "status": self._guard(self._publish_status),
                                          "diagnostics": self._guard(self._publish_diagnostics),
-                                         "enable": self._on_enable})
+                                         "enable": self._on_enable}, sources)
 
     def _destroy_interfaces(self) -> None:
         if getattr(self, "io", None) is not None:
@@ -270,6 +286,17 @@ class BrtNode(LifecycleNode):
             return
         self.values.wake()
 
+    def _on_source(self, source: ObservationSource) -> Callable[[Any], None]:
+        def on_message(msg: Any) -> None:
+            problem = source.on_message(msg)
+            if problem:
+                self._log("warning", f"observation rejected: {problem}")
+                return
+            self.values.wake()  # a new table for every new observation
+
+        on_message.__name__ = f"_on_{source.config.name}"
+        return on_message
+
     def _on_odom(self, msg: Odometry) -> None:
         if not self.states.on_odom(msg):
             self.counts.add("odom")
@@ -288,6 +315,7 @@ class BrtNode(LifecycleNode):
             ("map", lambda: self.maps.get(now, cfg.map_timeout)),
             ("state", lambda: self.states.get(now, cfg.odom_timeout, data["map"].frame_id)),
             ("speed", lambda: self._speed_check(data["state"])),
+            *((f"source {s.config.name}", lambda s=s: s.get(now)) for s in self.sources if s.config.required),
             ("value", lambda: self.values.get(now, cfg.value_timeout)),
         ]
         if self.settings.mode != "least_restrictive":  # these modes read V at the state itself
@@ -420,7 +448,9 @@ class BrtNode(LifecycleNode):
             counts=self.counts.snapshot(), inferences=self.values.inferences, inference_errors=self.values.errors,
             filter_ms=self.command_times.summary(), type_mismatch=list(self.type_mismatch),
             refinement=refinement.status(self.maps.current) if refinement is not None else None,
-            model=str(self.model_stem), symmetry_average=self.card.symmetry_average)
+            model=str(self.model_stem), symmetry_average=self.card.symmetry_average,
+            sources={src.config.name: src.status(now) for src in self.sources},
+            reaction_ms=status.summary_ms(self.values.reaction_s))
 
     def _present_decision(self, now: float, data: dict[str, Any]) -> safety_filter.Decision | None:
         """What the filter would do now with the last nominal command, if one came within stop_pub_timeout."""
@@ -447,8 +477,10 @@ class BrtNode(LifecycleNode):
         braking bound on the map's signed distance (less the footprint and the map's own margin) everywhere
         (core/least_restrictive.py)."""
         m = data["map"]
-        return least_restrictive.certificate(self.vf.params, lambda points: self.values.clearance(m, points),
-                                             data["value"].table, epsilon)
+        val = data["value"]
+        return least_restrictive.certificate(self.vf.params,
+                                             lambda points: self.values.clearance(m, points, val.obstacles),
+                                             val.table, epsilon)
 
     def _publish_status(self) -> None:
         if self.active:

@@ -12,6 +12,7 @@ import math
 from typing import TYPE_CHECKING, Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.parameter import Parameter
 
 from hjrno_ros.core import safety_filter, tables
 from hjrno_ros.core.dynamics import CAR_MODEL, DIFF_DRIVE_MODEL, RobotParams
@@ -29,9 +30,16 @@ class Param:
     hi: float | None = None
     read_only: bool = False  # topics, types, model: start-up only
 
+    def declared_default(self) -> Any:
+        """What ``declare_parameter`` gets: the default, or for an empty list the string-array type (rclpy
+        cannot type an empty list)."""
+        return Parameter.Type.STRING_ARRAY if self.default == [] else self.default
+
     def descriptor(self) -> ParameterDescriptor:
         extra: dict[str, Any] = {"read_only": self.read_only}
-        if isinstance(self.default, float):
+        if isinstance(self.default, list) and self.default:
+            extra["dynamic_typing"] = True  # [0, 0, 0] as well as [0.0, 0.0, 0.0]
+        elif isinstance(self.default, float):
             extra["dynamic_typing"] = True  # integers too; validate() converts and checks
             if self.lo is not None:
                 extra["floating_point_range"] = [FloatingPointRange(from_value=float(self.lo), to_value=float(self.hi),
@@ -95,6 +103,12 @@ PARAMETERS: dict[str, Param] = {
     "costmap_threshold": Param(99, "map_kind costmap: cost >= threshold is an obstacle; 99 = Nav2's inscribed cost "
                                    "(the footprint's inscribed radius is already inflated), 100 = lethal only", 0, 100),
     "unknown_is_obstacle": Param(True, "unknown cells (-1) and space beyond the map are obstacles"),
+    "observation_sources": Param([], "live sources beside the map (LaserScan, a rolling costmap), each configured by "
+                                     "<name>.type, <name>.topic, <name>.timeout, ... (docs/node.md, 'Observation "
+                                     "sources'); [] = the map alone", read_only=True),
+    "obstacle_speed_max": Param(1.0, "m/s: how fast a live source's obstacles that are not on the static map "
+                                     "(people) may approach; they are grown by this times the robot's time to stop "
+                                     "plus command_latency and the source's timeout", 0.0, 10.0, read_only=True),
     "inflation_radius": Param(-1.0, "m: obstacles grown by this much beyond footprint_radius (V0 = signed distance "
                                     "- footprint_radius - inflation_radius); -1 = h/sqrt(2) of the coarser of the "
                                     "model grid (at the robot's size) and the map (makes the interpolated V0 "
@@ -135,6 +149,8 @@ def normalise(cfg: dict[str, Any]) -> tuple[dict[str, Any], str | None]:
     """``cfg`` with float parameters as floats (integers accepted), or a reason why a value is unusable."""
     out = dict(cfg)
     for name, spec in PARAMETERS.items():
+        if isinstance(spec.default, list) and out.get(name) is None:  # an undeclared-type empty list
+            out[name] = []
         if name in out and isinstance(spec.default, float):
             value = _number(name, out[name])
             if isinstance(value, str):
@@ -153,6 +169,9 @@ def validate(cfg: dict[str, Any], startup: bool = False) -> str | None:
             return f"{name} must be finite, got {value}"
         if spec.lo is not None and not spec.lo <= value <= spec.hi:
             return f"{name} must lie in [{spec.lo:g}, {spec.hi:g}], got {value}"
+    names = cfg["observation_sources"]
+    if not isinstance(names, list | tuple) or not all(isinstance(n, str) and n for n in names):
+        return f"observation_sources must be a list of source names, got {names!r}"
     eps = cfg["epsilon"]
     if eps < 0 and not (startup and eps == -1.0):
         return f"epsilon must be finite and >= 0 (-1 = model card, at startup only), got {eps}"
@@ -207,10 +226,10 @@ def refined_filter_settings(card: ModelCard, settings: safety_filter.FilterSetti
     return dataclasses.replace(settings, epsilon=card.refine_epsilon), card.refine_horizon
 
 
-def markdown_table() -> str:
-    """The parameter table of docs/node.md."""
+def markdown_table(table: dict[str, Param] | None = None) -> str:
+    """A parameter table of docs/node.md: ``table`` (default PARAMETERS; the sources' own is SOURCE_PARAMETERS)."""
     rows = []
-    for name, p in PARAMETERS.items():
+    for name, p in (PARAMETERS if table is None else table).items():
         default = f'"{p.default}"' if isinstance(p.default, str) else str(p.default).lower() \
             if isinstance(p.default, bool) else repr(p.default)
         span = f"{p.lo:g} .. {p.hi:g}" if p.lo is not None else ""

@@ -17,7 +17,8 @@ DIAGNOSTICS_PERIOD = 1.0  # s
 LEVELS = {"ok": DiagnosticStatus.OK, "intervening": DiagnosticStatus.OK, "clipped": DiagnosticStatus.WARN,
           "bypassed": DiagnosticStatus.WARN, "unsafe_idle": DiagnosticStatus.WARN,
           "fail_closed": DiagnosticStatus.ERROR}
-NESTED = ("dropped", "counts", "value_grid", "robot", "filter_ms", "refinement", "cmd_type_mismatch")
+NESTED = ("dropped", "counts", "value_grid", "robot", "filter_ms", "refinement", "cmd_type_mismatch",
+          "observation_sources", "observation_to_table_ms")
 
 
 @dataclasses.dataclass
@@ -52,11 +53,16 @@ class CommandTimes:
         self._times.append(seconds)
 
     def summary(self) -> dict[str, float] | None:
-        times = np.asarray(self._times) * 1e3
-        if not times.size:
-            return None
-        return {"p50": round(float(np.percentile(times, 50)), 3), "p95": round(float(np.percentile(times, 95)), 3),
-                "max": round(float(times.max()), 3)}
+        return summary_ms(self._times)
+
+
+def summary_ms(seconds: Any) -> dict[str, float] | None:
+    """p50, p95 and max of durations in seconds, as ms; None without any."""
+    times = np.asarray(list(seconds)) * 1e3
+    if not times.size:
+        return None
+    return {"p50": round(float(np.percentile(times, 50)), 3), "p95": round(float(np.percentile(times, 95)), 3),
+            "max": round(float(times.max()), 3)}
 
 
 class ThrottledLog:
@@ -133,6 +139,8 @@ class StatusInputs:
     refinement: dict[str, Any] | None
     model: str
     symmetry_average: Any
+    sources: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)  # per observation source
+    reaction_ms: dict[str, float] | None = None  # observation received -> value table, last 200
 
 
 def build(s: StatusInputs) -> dict[str, Any]:
@@ -167,6 +175,8 @@ def build(s: StatusInputs) -> dict[str, Any]:
         "refinement": s.refinement,
         "model": s.model,
         "symmetry_average": s.symmetry_average,
+        "observation_sources": s.sources,
+        "observation_to_table_ms": s.reaction_ms,
     }
 
 

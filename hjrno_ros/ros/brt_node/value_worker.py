@@ -11,6 +11,7 @@ robot is inside it.  It runs at a lower scheduling priority, so a busy CPU serve
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import math
 import os
@@ -23,9 +24,11 @@ import numpy as np
 
 from hjrno_ros.core import geometry
 from hjrno_ros.core.grids import wrap_angle
+from hjrno_ros.core.point_obstacles import PointObstacles
 from hjrno_ros.core.value_source import ValueSource
 from hjrno_ros.ros.brt_node.config import NodeConfig
 from hjrno_ros.ros.brt_node.inputs import MapData, MapInput, RobotState, StateInput
+from hjrno_ros.ros.brt_node.observation_sources import ObservationSource, live_obstacles
 from hjrno_ros.ros.brt_node.parameters import obstacle_threshold
 from hjrno_ros.ros.brt_node.refinement import Refinement
 
@@ -46,6 +49,8 @@ class ValueData:
     grid_info: dict  # origin/resolution/size of the published value grid
     source: str = "operator"  # or "refined"
     horizon: float = 0.0  # refined: simulated s of solver behind the table
+    obstacles: tuple[PointObstacles, ...] = ()  # the live sources' obstacles the table was made with
+    sources_version: tuple[int, ...] = ()  # their data versions
 
 
 def table_state(state: RobotState, table_theta: float, v_lo: float, v_hi: float) -> np.ndarray:
@@ -71,9 +76,12 @@ class ValueWorker:
 
     def __init__(self, vf: ValueSource, maps: MapInput, states: StateInput, cfg: Callable[[], NodeConfig],
                  publish: Callable[[np.ndarray, dict, MapData, RobotState], None],
-                 log: Callable[[str, str], None], refinement: Refinement | None = None) -> None:
+                 log: Callable[[str, str], None], refinement: Refinement | None = None,
+                 sources: list[ObservationSource] | None = None) -> None:
         self.vf, self.maps, self.states, self.cfg, self.publish, self.log = vf, maps, states, cfg, publish, log
         self.refinement = refinement
+        self.sources = list(sources or [])
+        self.reaction_s: collections.deque[float] = collections.deque(maxlen=200)  # observation received -> table
         self.value: ValueData | None = None
         self.error = ""  # the last inference failure; "" after a success
         self.inferences = self.errors = 0
@@ -147,12 +155,35 @@ class ValueWorker:
         grid = self.vf.grid.half_cell_diagonal if model_grid else 0.0
         return cfg.footprint_radius + max(grid, map_resolution / math.sqrt(2))
 
-    def clearance(self, m: MapData, points: np.ndarray) -> np.ndarray:
-        """The braking bound's clearance at x-y ``points``: the map's signed distance minus the footprint and the
-        map's own interpolation margin (m)."""
+    def clearance(self, m: MapData, points: np.ndarray, obstacles: tuple[PointObstacles, ...] = ()) -> np.ndarray:
+        """The braking bound's clearance at x-y ``points``: the map's signed distance, or the live ``obstacles``'
+        distance where less, minus the footprint and the map's own interpolation margin (m)."""
         outside = -m.resolution if m.unknown_is_obstacle else None
         sd = geometry.sample_raster(m.sd, m.origin, m.resolution, points, outside=outside)
+        for obstacle in obstacles:
+            sd = np.minimum(sd, obstacle.distance(points))
         return sd - self.inflation(m.resolution, model_grid=False)
+
+    def moving_margin(self) -> float:
+        """m: how far a live obstacle that is not on the static map may come while the robot stops:
+        ``obstacle_speed_max`` times (the robot's time to stop from its top speed, ``command_latency`` and the
+        largest source timeout, the oldest data the node filters with); docs/design.md, "Moving obstacles"."""
+        cfg, p = self.cfg(), self.vf.params
+        stop = max(abs(p.v_min), abs(p.v_max)) / p.a_max
+        timeout = max((s.config.timeout for s in self.sources), default=0.0)
+        return cfg.obstacle_speed_max * (stop + cfg.command_latency + timeout)
+
+    def live_obstacles(self, m: MapData, state: RobotState, now: float
+                       ) -> tuple[tuple[PointObstacles, ...], tuple[int, ...], str]:
+        """The fresh sources' obstacles in the map frame, their versions, or why a required source is unusable."""
+        if not self.sources:
+            return (), (), ""
+        outside = -m.resolution if m.unknown_is_obstacle else None
+        obstacles, versions, reason = live_obstacles(
+            self.sources, now, m.frame_id, lambda stamp: self.states.pose_at(stamp, state),
+            lambda pts: geometry.sample_raster(m.sd, m.origin, m.resolution, pts, outside=outside),
+            self.moving_margin())
+        return tuple(obstacles), versions, reason
 
     def v0(self, m: MapData, points: np.ndarray) -> np.ndarray:
         """V0 at x-y ``points`` (..., 2): the map's signed distance minus the inflation (float32, m)."""
@@ -175,9 +206,12 @@ class ValueWorker:
         state, _ = self.states.get(now, cfg.odom_timeout, m.frame_id)
         if state is None:
             return
-        if self.refinement is not None:
+        if self.refinement is not None and not self.sources:  # a refined table holds the static map only
             refined = self.refinement.usable(m, state)
-        if not self._stale(m, state, refined, now, cfg):
+        obstacles, versions, reason = self.live_obstacles(m, state, now)
+        if reason:  # the node's check names the source and fails closed; no table without it
+            return
+        if not self._stale(m, state, refined, now, cfg) and versions == getattr(self.value, "sources_version", ()):
             return
         start = time.perf_counter()
         p = self.vf.params
@@ -186,8 +220,11 @@ class ValueWorker:
         if refined is None:
             if not self.vf.predicts:  # a solver card: no operator, wait for the solver's table
                 return
-            table = self.vf.local_table(self.v0(m, self.vf.window_points(center)), center, v, state.theta,
-                                        reach=self.reach)
+            points = self.vf.window_points(center)
+            v0 = self.v0(m, points)
+            for obstacle in obstacles:  # the live sources: on the window's nodes only
+                v0 = np.minimum(v0, (obstacle.distance(points) - self.inflation(m.resolution)).astype(np.float32))
+            table = self.vf.local_table(v0, center, v, state.theta, reach=self.reach)
         else:
             table = refined.table
         latency = 1e3 * (time.perf_counter() - start)
@@ -199,12 +236,22 @@ class ValueWorker:
                 "resolution": h, "width": self.grid_shape[0], "height": self.grid_shape[1], "v": v,
                 "theta": state.theta, "center": list(center), "inflation_radius": self.inflation(m.resolution),
                 "source": "refined" if refined else "operator"}
+        previous = self.value.sources_version if self.value is not None else ()
         self.value = ValueData(table, center, v, state.theta, time.monotonic(), m.version, latency, info,
-                               info["source"], refined.horizon if refined else 0.0)
+                               info["source"], refined.horizon if refined else 0.0, obstacles, versions)
+        self._record_reaction(versions, previous)
         self.error = ""
         self.inferences += 1
         if not self._stop.is_set():
             self.publish(values, info, m, state)
+
+    def _record_reaction(self, versions: tuple[int, ...], previous: tuple[int, ...]) -> None:
+        """For each observation that is new in this table: seconds from its receipt to the table."""
+        now = time.monotonic()
+        for k, (source, version) in enumerate(zip(self.sources, versions, strict=True)):
+            data = source.current
+            if version >= 0 and (k >= len(previous) or previous[k] != version) and data and data.version == version:
+                self.reaction_s.append(now - data.received)
 
     def _stale(self, m: MapData, state: RobotState, refined: Any, now: float, cfg: NodeConfig) -> bool:
         """Whether the table must be recomputed for this map and state."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import time
 from collections.abc import Callable
 from typing import Any
@@ -11,6 +12,8 @@ import numpy as np
 from geometry_msgs.msg import TwistStamped
 from nav_msgs.msg import OccupancyGrid, Odometry
 from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import LaserScan
 from std_msgs.msg import String
 from std_srvs.srv import SetBool
 
@@ -31,7 +34,7 @@ class BenchDriver(Node):
     """
 
     def __init__(self, context: Any, pose: tuple[float, float, float], speed: float, frame_id: str = "map",
-                 odom_rate: float = 50.0, cmd_rate: float = 20.0) -> None:
+                 odom_rate: float = 50.0, cmd_rate: float = 20.0, scan_rate: float = 0.0) -> None:
         super().__init__("brt_bench_driver", context=context)
         qos = LATCHED
         self.pose, self.speed, self.frame_id = pose, speed, frame_id
@@ -50,6 +53,25 @@ class BenchDriver(Node):
         self.create_subscription(String, "brt/status", self._on_status, 10)
         self.create_timer(1.0 / odom_rate, self._odom)
         self.create_timer(1.0 / cmd_rate, self._cmd)
+        if scan_rate > 0:
+            self.scan_pub = self.create_publisher(LaserScan, "scan", qos_profile_sensor_data)
+            self.scans = 0
+            self.create_timer(1.0 / scan_rate, self._scan)
+
+    def _scan(self) -> None:
+        """A 720-beam scan: a ring of walls 4 m away and a person 2.5 m ahead who walks from side to side."""
+        msg = LaserScan()
+        msg.header.frame_id, msg.header.stamp = "laser", self.get_clock().now().to_msg()
+        msg.angle_min, msg.angle_increment, msg.range_min, msg.range_max = -math.pi, math.pi / 360, 0.05, 12.0
+        msg.angle_max = msg.angle_min + 719 * msg.angle_increment
+        angles = msg.angle_min + msg.angle_increment * np.arange(720)
+        ranges = np.full(720, 4.0)
+        person = 0.6 * math.sin(0.8 * self.scans / 10.0)  # lateral offset, m
+        bearing = math.atan2(person, 2.5)
+        ranges[np.abs(angles - bearing) < 0.12] = math.hypot(2.5, person)
+        msg.ranges = ranges.tolist()
+        self.scans += 1
+        self.scan_pub.publish(msg)
 
     def _on_status(self, msg: String) -> None:
         if self.first_status is None:
@@ -85,7 +107,8 @@ class BenchDriver(Node):
 def bench_drive(domain_id: int, maps: list[np.ndarray], resolution: float, origin: tuple[float, float],
                 pose: tuple[float, float, float], speed: float, seconds: float, bypass_seconds: float = 0.0,
                 map_period: float = 1.0, ready_timeout: float = 120.0, on_ready: Callable[[], None] | None = None,
-                on_done: Callable[[], None] | None = None, alive: Callable[[], bool] = lambda: True) -> dict:
+                on_done: Callable[[], None] | None = None, alive: Callable[[], bool] = lambda: True,
+                scan_rate: float = 0.0) -> dict:
     """Run a BenchDriver against a brt_node on ``domain_id``.
 
     Waits until the node filters (status ok), calls ``on_ready``, sends commands for ``seconds`` while
@@ -94,7 +117,7 @@ def bench_drive(domain_id: int, maps: list[np.ndarray], resolution: float, origi
     process and DDS path without the filter, a baseline for the command latency.  Returns raw
     latencies (s), counts and the node's last status.
     """
-    driver, stop = spin_in_background(domain_id, lambda c: BenchDriver(c, pose, speed))
+    driver, stop = spin_in_background(domain_id, lambda c: BenchDriver(c, pose, speed, scan_rate=scan_rate))
     enable = driver.create_client(SetBool, f"/{NODE_NAME}/enable")
     try:
         driver.publish_map(maps[0], resolution, origin, 1)

@@ -71,7 +71,7 @@ class EpisodeRobot(SimRobot):
         self.goal_index = 0
         self.log = EpisodeLog()
         self._filtered, self._filtered_at, self._intervened = np.zeros(2), -math.inf, False
-        self._sent.clear()
+        self.commands.forget()
         self._episode_ns = self.get_clock().now().nanoseconds
 
     def event(self, xy: np.ndarray) -> str | None:
@@ -99,13 +99,8 @@ class EpisodeRobot(SimRobot):
         else:
             nominal = closed_loop.nominal_twist(self.params, self.x, self.goals[self.goal_index][None],
                                                 np.array(["goal"]))[0]
-        msg = TwistStamped()
-        msg.header.frame_id = "base_link"
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.twist.linear.x, msg.twist.angular.z = float(nominal[0]), float(nominal[1])
         self.log.commands += 1
-        self._sent[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = (time.perf_counter(), nominal)
-        self.cmd_pub.publish(msg)
+        self.commands.send(nominal)
 
     def _on_cmd(self, msg: TwistStamped) -> None:
         stamp = msg.header.stamp
