@@ -491,6 +491,8 @@ def parameter_value(rng: np.random.Generator, name: str, spec: Any) -> Any:
     """A value for ``name`` as ROS can deliver it: float parameters take any type (dynamic typing); the others
     only their declared type (rclpy refuses another type before the node sees it)."""
     default = spec.default
+    if isinstance(default, list):  # a string array (observation_sources): rclpy delivers only lists of strings
+        return [[], ["scan"], ["scan", "local_costmap"], [""], ["ü" * 300]][int(rng.integers(5))]
     if isinstance(default, bool):
         return bool(rng.integers(2))
     if isinstance(default, int):
@@ -538,6 +540,8 @@ def parameter_expected(name: str, spec: Any, value: Any, startup: bool) -> bool:
             return False
     if name in CHOICES:
         return value in CHOICES[name]()
+    if name == "observation_sources":  # docs/node.md: a list of source names
+        return all(isinstance(n, str) and n for n in value)
     if spec.lo is not None:
         return spec.lo <= value <= spec.hi
     return True

@@ -192,3 +192,38 @@ def test_people_off_the_map_are_kept_at_the_motion_margin(model_stem):  # noqa: 
             assert occupancy()[150, 100] == 100  # the wall the margin leaves alone
         finally:
             scanner.stop()
+
+
+def test_a_rolling_costmap_source_adds_its_cells_and_its_edge_is_no_wall(model_stem):  # noqa: F811
+    """A 3 m × 3 m rolling costmap around the robot at FAR: empty, V at the robot stays above the 1.5 m to its
+    edge (the map covers the robot there); with one lethal cell 1 m ahead, V falls below 1 m."""
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from test_brt_node import map_msg
+
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    with driver_and_node(model_stem, DOMAIN + 2, observation_sources=["local"], obstacle_speed_max=0.0, **DIFF_DRIVE,
+                         **{"local.type": "costmap", "local.topic": "local_costmap/costmap"}) as (driver, _node):
+        pub = driver.create_publisher(type(map_msg(occupancy())), "local_costmap/costmap", latched)
+        stop, occ = threading.Event(), np.zeros((30, 30), np.int8)
+
+        def publish() -> None:  # a rolling costmap at 5 Hz, its origin 1.5 m left of and below the robot
+            while not stop.wait(0.2):
+                msg = map_msg(occ)
+                msg.info.origin.position.x, msg.info.origin.position.y = FAR[0] - 1.5, FAR[1] - 1.5
+                pub.publish(msg)
+
+        thread = threading.Thread(target=publish, daemon=True)
+        thread.start()
+        try:
+            driver.pose, driver.v = (*FAR, 0.0), 0.0
+            assert wait_for(lambda: driver.status.get("state") == "ok"
+                            and "local" in driver.status.get("observation_sources", {}), 30.0), driver.status
+            assert driver.status["observation_sources"]["local"]["points"] == 0
+            assert driver.status["value"] > 1.6, driver.status  # the window's edge at 1.5 m is not an obstacle
+            occ[24, 15] = 100  # the cell whose centre is 0.95 m ahead of the robot
+            assert wait_for(lambda: driver.status.get("observation_sources", {}).get("local", {}).get("points") == 1
+                            and driver.status.get("value") is not None and driver.status["value"] < 1.0, 10.0), \
+                driver.status
+        finally:
+            stop.set()
+            thread.join(timeout=2.0)
