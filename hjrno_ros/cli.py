@@ -475,13 +475,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("bench", help="run a benchmark and write its results table")
-    p.add_argument("what", choices=["solver", "dataset", "node", "fuzz", "depot", "nav"])
+    p.add_argument("what", choices=["solver", "dataset", "node", "fuzz", "depot", "nav", "people"])
     p.add_argument("--out", default="out/bench", help="results folder (default: out/bench)")
     p.add_argument("--quick", action="store_true", help="smallest case only (smoke run)")
     p.add_argument("--only", default=None, help="dataset bench: families; solver bench: problems (comma-separated)")
     p.add_argument("--model", default=None, help="node, depot and nav benches: model stem (default: models/default)")
-    p.add_argument("--seconds", type=float, default=None, help="fuzz: seconds (180); depot, nav: per episode")
-    p.add_argument("--episodes", type=int, default=None, help="depot: episodes (200); nav: per case (3)")
+    p.add_argument("--seconds", type=float, default=None, help="fuzz: seconds (180); depot, nav, people: per episode")
+    p.add_argument("--episodes", type=int, default=None, help="depot: episodes (200); nav: per case (3); people: (2)")
     p.add_argument("--scan-rate", type=float, default=0.0,
                    help="node bench: also send LaserScans at this rate, Hz, as an observation source (default: none)")
     for name in ("robots", "maps", "drivers", "filters"):  # nav_bench.ROBOTS, MAPS, DRIVERS, FILTERS

@@ -11,6 +11,7 @@ from hjrno_ros.learning import checkpoint
 from hjrno_ros.learning.training import TrainConfig, train
 
 SMALL = {"width": 8, "modes": 4, "n_layers": 2}
+pytest_plugins = ["dds_driver"]  # the DDS tests' fixtures (model_stem, ros) for every folder
 
 
 @pytest.fixture(scope="session")

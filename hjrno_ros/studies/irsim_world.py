@@ -117,8 +117,29 @@ def _cell_outline(obstacles: np.ndarray, origin: tuple[float, float], resolution
     return [shapely.transform(ring, lambda c: offset + c * resolution) for ring in rings]
 
 
+@dataclasses.dataclass(frozen=True)
+class Person:
+    """A pedestrian: IR-SIM's omnidirectional agent walking through ``waypoints`` (m) in turn at up to ``speed``
+    (m/s), steered by IR-SIM's social-force model (``sfm``: towards the goal, away from the others, the robot and
+    walls); a disk of ``radius`` m.  (IR-SIM 2.12's ``rvo`` behaviour stalled a walker in a small walled room:
+    it crept at 0.05 m/s away from its goal.)"""
+
+    waypoints: tuple[tuple[float, float], ...]
+    speed: float = 1.0
+    radius: float = 0.2
+    laps: int = 20  # the waypoint list is walked this many times (IR-SIM drops each goal once reached)
+
+    def as_irsim(self) -> dict[str, Any]:
+        (x0, y0), rest = self.waypoints[0], [*self.waypoints[1:], self.waypoints[0]]
+        goals = [[float(x), float(y), 0.0] for _ in range(self.laps) for x, y in rest]
+        s = float(self.speed)
+        return {"number": 1, "kinematics": {"name": "omni"}, "shape": {"name": "circle", "radius": self.radius},
+                "state": [float(x0), float(y0), 0.0], "goal": goals, "vel_max": [s, s], "vel_min": [-s, -s],
+                "behavior": {"name": "sfm"}, "goal_threshold": 0.3}
+
+
 class IrSimWorld:
-    """One IR-SIM world: a grid map and one diff-drive robot."""
+    """One IR-SIM world: a grid map, one diff-drive robot and, optionally, pedestrians."""
 
     LIDAR_BEAMS = 360  # beams over a full turn, 1 degree apart
     LIDAR_RANGE_MAX = 10.0  # m (IR-SIM's default)
@@ -133,6 +154,7 @@ class IrSimWorld:
         step_time: float = 0.05,
         lidar: bool = False,
         seed: int = 0,
+        people: tuple[Person, ...] = (),
     ) -> None:
         """Build the world headless.
 
@@ -147,6 +169,8 @@ class IrSimWorld:
             step_time: simulated seconds per :meth:`step`.
             lidar: give the robot IR-SIM's 2-D LiDAR (:attr:`LIDAR_BEAMS` beams, :attr:`LIDAR_RANGE_MAX`).
             seed: seed of IR-SIM's random generator (nothing here is random; kept for reproducibility).
+            people: pedestrians IR-SIM moves each step (:class:`Person`); its LiDAR sees them and its collision
+                check counts them.
         """
         obstacles = np.asarray(obstacles, dtype=bool)
         if obstacles.ndim != 2 or min(obstacles.shape) < 1:
@@ -181,7 +205,8 @@ class IrSimWorld:
                      "collision_mode": "stop", "control_mode": "auto", "obstacle_map": image}
             path = os.path.join(folder, "hjrno_irsim.yaml")  # JSON is YAML; no world name (it crashes)
             with open(path, "w") as f:
-                json.dump({"world": world, "robot": [robot]}, f)
+                json.dump({"world": world, "robot": [robot], **({"obstacle": [p.as_irsim() for p in people]}
+                                                                 if people else {})}, f)
             self._env = irsim.make(path, headless=True, log_level="CRITICAL", seed=seed)
         try:
             loaded = self._env.get_map(resolution=float(resolution)).grid
@@ -195,6 +220,27 @@ class IrSimWorld:
             self._env.end(ending_time=0.0)
             raise
         self._closed = False
+        self.people = tuple(people)
+        self.contact_speed: float | None = None  # |v| the robot had in the step that collided
+        self.min_people_clearance = math.inf  # m between the robot's and the people's disks, over the steps
+        self._track_people()
+
+    def _track_people(self) -> None:
+        if not self.people:
+            return
+        x, y, _ = self.pose
+        for person, obj in zip(self.people, self._people_objects(), strict=True):
+            px, py = (float(v) for v in obj.state[:2, 0])
+            gap = math.hypot(px - x, py - y) - person.radius - self.base.radius
+            self.min_people_clearance = min(self.min_people_clearance, gap)
+
+    @property
+    def people_positions(self) -> np.ndarray:
+        """(k, 2) positions of the pedestrians, m."""
+        return np.array([[float(v) for v in obj.state[:2, 0]] for obj in self._people_objects()]).reshape(-1, 2)
+
+    def _people_objects(self) -> list[Any]:
+        return [obj for obj in self._env.obstacle_list if obj.shape != "map"]
 
     def _use_cell_outline(self, obstacles: np.ndarray, origin: tuple[float, float], resolution: float) -> None:
         """Replace IR-SIM's map outline by :func:`_cell_outline` (same lines, ~50x faster LiDAR; module docstring)."""
@@ -223,6 +269,9 @@ class IrSimWorld:
             raise RuntimeError("IrSimWorld is closed")
         self._env.step([float(linear), float(angular)])
         self._steps += 1
+        if self.collided and self.contact_speed is None:
+            self.contact_speed = abs(self.velocity[0])  # what IR-SIM applied in the colliding step
+        self._track_people()
 
     @property
     def pose(self) -> tuple[float, float, float]:

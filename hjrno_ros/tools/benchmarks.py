@@ -220,6 +220,10 @@ def dispatch(what: str, out: Path, quick: bool = False, only: str | None = None,
 
         return nav_bench.run(out, episodes=episodes or 3, model=model, seconds=seconds,
                              **{k: tuple(v.split(",")) for k, v in (select or {}).items() if v})
+    if what == "people":
+        from hjrno_ros.tools import people_bench
+
+        return people_bench.run(out, episodes=episodes or 2, seconds=seconds or 40.0, model=model)
     episodes = 200 if episodes is None else episodes
     if what == "depot":
         from hjrno_ros.tools import depot_check

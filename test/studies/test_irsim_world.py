@@ -179,3 +179,40 @@ def test_two_worlds_step_independently():
         assert a.pose[0] == pytest.approx(1.0 + 4 * 0.5 * 0.05)
         assert b.pose[0] == pytest.approx(1.0 + 4 * 0.5 * 0.1)
         assert (a.time, b.time) == pytest.approx((0.2, 0.4))
+
+
+def test_pedestrians_walk_are_seen_by_the_lidar_and_their_contacts_are_timed():
+    """A person IR-SIM moves (social force, omni) walks between two points at 1 m/s and the LiDAR sees them; a robot
+    that drives into a person standing still collides (IR-SIM's check) with its speed at contact recorded."""
+    from hjrno_ros.studies.irsim_world import Person
+
+    occ = walled(160, 80)  # 8 m x 4 m from (-1, -2)
+    walker = Person(((1.5, 0.0), (5.5, 0.0)), speed=1.0)
+    with IrSimWorld(occ, (-1.0, -2.0), 0.05, BASE, (0.0, 0.0, 0.0), step_time=DT, lidar=True,
+                    people=(walker,)) as world:
+        ranges, angle_min, increment, _ = world.scan()
+        ahead = int(round(-angle_min / increment))
+        assert ranges[ahead] == pytest.approx(1.5 - walker.radius, abs=0.02)  # the person's near side
+        assert world.min_people_clearance == pytest.approx(1.5 - walker.radius - BASE.radius, abs=1e-6)
+        for _ in range(20):
+            world.step(0.0, 0.0)
+        x, y = world.people_positions[0]
+        assert 2.1 < x < 2.6 and abs(y) < 0.3  # about 1 s at 1 m/s towards (5.5, 0), pushed off the robot
+        assert world.contact_speed is None and not world.collided
+    standing = Person(((1.0, 0.0), (1.0, 0.0)), speed=0.01)
+    with IrSimWorld(occ, (-1.0, -2.0), 0.05, BASE, (0.0, 0.0, 0.0), step_time=DT, people=(standing,)) as world:
+        while not world.collided and world.time < 10.0:
+            world.step(BASE.v_max, 0.0)
+        assert world.collided and world.contact_speed == pytest.approx(BASE.v_max)
+        assert world.min_people_clearance <= 1e-9  # the disks touched
+
+
+def test_scan_messages_read_inf_where_irsim_saw_nothing():
+    pytest.importorskip("rclpy")
+    from builtin_interfaces.msg import Time
+
+    from hjrno_ros.ros.harness.irsim_base import scan_message
+
+    msg = scan_message((np.array([1.0, 10.0, 3.0]), -0.5, 0.5, 10.0), Time(sec=3))
+    assert list(msg.ranges) == [1.0, math.inf, 3.0] and msg.angle_max == pytest.approx(0.5)
+    assert msg.header.stamp.sec == 3

@@ -11,8 +11,8 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 
-from test_brt_node import DOMAIN, ROOT, map_msg, occupancy, settle  # noqa: E402
-from test_brt_node import driver_and_node as _driver_and_node  # noqa: E402
+from dds_driver import DOMAIN, ROOT, map_msg, occupancy, settle  # noqa: E402
+from dds_driver import driver_and_node as _driver_and_node  # noqa: E402
 
 from hjrno_ros.core.dynamics import DiffDriveParams  # noqa: E402
 from hjrno_ros.core.model_card import ModelCard  # noqa: E402
@@ -68,6 +68,8 @@ def test_a_reversing_turtlebot3_turns_in_place_and_is_slowed_at_walls():
         assert out is not None and (out.linear.x, out.angular.z) == (0.15, 0.2)
         # the wall spans x in [5.0, 5.4] units: at rest 0.3 units before it, facing it, a spin passes as it is
         st = settle(driver, 4.7 * S, 0.0, 0.0, 0.0, timeout=20.0)
+        assert driver.command(0.0, 0.0) is not None  # a base at rest executes rest: the last output was the far
+        # command, which the filter would take the base to go on executing until the spin acts (a teleported robot)
         out = driver.command(0.0, 2.0)
         assert out is not None and (out.linear.x, out.angular.z) == (0.0, 2.0), st
         # at full speed, heading at it: slowed

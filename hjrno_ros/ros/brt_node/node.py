@@ -3,6 +3,7 @@
 The node coordinates small components (docs/node.md has topics, QoS, status and every parameter)::
 
     map ─► MapInput (validate; signed distance in the worker)        ┐
+    scan / costmap ─► ObservationSource (each its own timeout)        │
     odom [+ pose] ─► StateInput (x, y, v, θ in the map frame)         ├─► fail-closed check ─► filter ─► cmd_vel_out
     ValueWorker (own thread): window around the robot ─► V table ─────┘        ▲
     cmd_vel_in ────────────────────────────────────────────────────────────────┘

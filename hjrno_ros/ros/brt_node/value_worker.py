@@ -4,8 +4,10 @@ At ``inference_rate`` it installs new maps (signed distance), and when the robot
 the table is half ``value_timeout`` old or (a slice model's (v, θ) stencil, which spans what the robot reaches in
 ``STENCIL_HORIZON_S``) the robot is half way to its edge, it predicts V∞ on a window centred on the robot (a table
 model: every speed and heading at once) and swaps the table in atomically.
-With background refinement, the refined table of the current map replaces the operator's while the
-robot is inside it.  It runs at a lower scheduling priority, so a busy CPU serves commands first.
+With observation sources every new observation wakes it and makes a new table: V0 on the window is the minimum
+of the map's signed distance and the fresh sources' (their obstacles off the map grown by the motion margin).
+With background refinement (and no observation sources), the refined table of the current map replaces the
+operator's while the robot is inside it.  It runs at a lower scheduling priority, so a busy CPU serves commands first.
 ``get`` is the value input of the fail-closed check.
 """
 

@@ -20,6 +20,8 @@ import numpy as np
 from geometry_msgs.msg import TwistStamped
 from nav_msgs.msg import OccupancyGrid
 from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import LaserScan
 
 from hjrno_ros.ros.brt_node.messages import occupancy_message, odometry_message
 from hjrno_ros.ros.harness.commands import StampedCommands, unsafe_grid
@@ -42,7 +44,9 @@ class BaseLog:
 
 class IrSimBase(Node):
     def __init__(self, world, nav_map: NavMap, driver: GoalDriver, step_time: float = 0.05, direct: bool = False,
-                 cmd_timeout: float = 0.25, context=None, name: str = "irsim_base") -> None:
+                 cmd_timeout: float = 0.25, context=None, name: str = "irsim_base", scan_every: int = 0) -> None:
+        """``scan_every`` > 0: publish IR-SIM's LiDAR scan on ``scan`` every that many steps (the world needs its
+        LiDAR)."""
         super().__init__(name, context=context)
         self.world, self.driver, self.step_time, self.direct = world, driver, step_time, direct
         self.cmd_timeout = cmd_timeout
@@ -56,6 +60,8 @@ class IrSimBase(Node):
         grid = occupancy_message(nav_map.occupancy(), nav_map.resolution, nav_map.origin)
         grid.header.stamp = self.get_clock().now().to_msg()
         self.map_pub.publish(grid)
+        self.scan_every, self._ticks = scan_every, 0
+        self.scan_pub = self.create_publisher(LaserScan, "scan", qos_profile_sensor_data) if scan_every else None
         self.create_timer(step_time, self._tick)
 
     def now(self) -> float:
@@ -82,7 +88,11 @@ class IrSimBase(Node):
                 self.log.collided_at = t
             x, y, theta = self.world.pose
             v, omega = self.world.velocity
-        self.odom_pub.publish(odometry_message(x, y, theta, v, "map", self.get_clock().now().to_msg()))
+        stamp = self.get_clock().now().to_msg()
+        self.odom_pub.publish(odometry_message(x, y, theta, v, "map", stamp))
+        self._ticks += 1
+        if self.scan_pub is not None and self._ticks % self.scan_every == 0:
+            self.scan_pub.publish(scan_message(self.world.scan(), stamp))
 
     def _send(self, nominal: np.ndarray) -> None:
         self.log.commands += 1
@@ -110,6 +120,18 @@ class IrSimBase(Node):
         return EpisodeResult(log.collided_at is not None, log.collided_at, list(driver.reached),
                              len(driver.episode.goals), len(log.trace), log.stopped, log.changed,
                              0 if self.direct else stops, np.array(log.trace).reshape(-1, 6))
+
+
+def scan_message(scan: tuple[np.ndarray, float, float, float], stamp) -> LaserScan:
+    """IR-SIM's LiDAR scan as a LaserScan in the robot's frame; a beam that hit nothing (range_max) reads inf."""
+    ranges, angle_min, increment, range_max = scan
+    msg = LaserScan()
+    msg.header.frame_id, msg.header.stamp = "laser", stamp
+    msg.angle_min, msg.angle_increment = angle_min, increment
+    msg.angle_max = angle_min + increment * (len(ranges) - 1)
+    msg.range_min, msg.range_max = 0.0, range_max
+    msg.ranges = np.where(ranges >= range_max - 1e-9, np.inf, ranges).tolist()
+    return msg
 
 
 def drive(domain: int, make_base: Callable[..., IrSimBase], seconds: float, ready: Callable[[BaseLog], bool],

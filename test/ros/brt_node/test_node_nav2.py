@@ -11,12 +11,12 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 
+from dds_driver import DOMAIN, FAR, RES, Driver, driver_and_node, map_msg, occupancy, settle, wait_for  # noqa: E402
 from geometry_msgs.msg import Twist, TwistStamped  # noqa: E402
 from lifecycle_msgs.msg import State, Transition  # noqa: E402
 from lifecycle_msgs.srv import ChangeState, GetState  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from scipy import ndimage  # noqa: E402
-from test_brt_node import DOMAIN, FAR, RES, Driver, driver_and_node, map_msg, model_stem, occupancy, settle, wait_for  # noqa: E402, F401
 
 
 def managed(model: str, domain: int, **params):
@@ -34,7 +34,7 @@ def lifecycle_state(driver: Driver) -> int:
     return driver.call(client, GetState.Request()).current_state.id
 
 
-def test_lifecycle_through_its_services(model_stem):  # noqa: F811
+def test_lifecycle_through_its_services(model_stem):
     """configure -> inactive: nothing published, commands unanswered; activate: filtering; deactivate: silent
     again; a new activation starts clean (counters, odometry, value); cleanup -> unconfigured; shutdown."""
     with managed(model_stem, DOMAIN + 40) as (driver, node):
@@ -65,7 +65,7 @@ def test_lifecycle_through_its_services(model_stem):  # noqa: F811
         assert lifecycle_state(driver) == State.PRIMARY_STATE_FINALIZED
 
 
-def test_invalid_lifecycle_requests_are_refused_and_the_node_keeps_filtering(model_stem):  # noqa: F811
+def test_invalid_lifecycle_requests_are_refused_and_the_node_keeps_filtering(model_stem):
     """Every transition that does not exist from the present state (activate while active, configure, cleanup, an
     unknown id; activate or deactivate while unconfigured) is refused with success false: the state stays, the
     node keeps running and, when active, filtering (rclpy alone raises out of the executor and ends the node)."""
@@ -85,7 +85,7 @@ def test_invalid_lifecycle_requests_are_refused_and_the_node_keeps_filtering(mod
             assert out is not None and (out.linear.x, out.angular.z) == (0.7, -0.3)
 
 
-def test_a_bad_configuration_fails_the_transition_with_one_reason(model_stem):  # noqa: F811
+def test_a_bad_configuration_fails_the_transition_with_one_reason(model_stem):
     with managed("/nonexistent", DOMAIN + 41) as (driver, node):
         assert not transition(driver, Transition.TRANSITION_CONFIGURE)
         assert lifecycle_state(driver) == State.PRIMARY_STATE_UNCONFIGURED
@@ -103,7 +103,7 @@ def nav2_costmap(occ: np.ndarray, inscribed: float, res: float) -> np.ndarray:
     return cost
 
 
-def test_a_nav2_costmap_is_not_inflated_twice(model_stem):  # noqa: F811
+def test_a_nav2_costmap_is_not_inflated_twice(model_stem):
     """With map_kind costmap the inscribed cells are the obstacles: V 2 m from the wall matches the plain map
     with the inscribed radius added to the inflation, instead of counting Nav2's whole decay region (before:
     1.20 against 1.60 with occupied_threshold 50)."""
@@ -121,7 +121,7 @@ def test_a_nav2_costmap_is_not_inflated_twice(model_stem):  # noqa: F811
     assert values["threshold 50"] < values["costmap"] - 0.2, values  # the double inflation it replaces
 
 
-def test_a_command_type_mismatch_is_found_in_the_graph(model_stem):  # noqa: F811
+def test_a_command_type_mismatch_is_found_in_the_graph(model_stem):
     """A TwistStamped publisher on the Twist topic the node reads: its commands never arrive; the node says so
     in status and diagnostics instead of "ok"."""
     with managed(model_stem, DOMAIN + 43) as (driver, node):

@@ -16,9 +16,9 @@ import pytest
 rclpy = pytest.importorskip("rclpy")
 
 from conftest import wait_for  # noqa: E402
+from dds_driver import FAR, driver_and_node, occupancy  # noqa: E402
 from rclpy.qos import qos_profile_sensor_data  # noqa: E402
 from sensor_msgs.msg import LaserScan  # noqa: E402
-from test_brt_node import FAR, driver_and_node, model_stem, occupancy  # noqa: E402, F401 (model_stem: a fixture)
 
 from hjrno_ros.core.point_obstacles import PointObstacles, behind, scan_points, transform  # noqa: E402
 from hjrno_ros.ros.brt_node.config import NodeConfig  # noqa: E402
@@ -85,7 +85,7 @@ def test_malformed_sources_and_scans_are_refused_with_one_line():
 
 
 def test_a_rolling_costmaps_edge_is_not_an_obstacle():
-    from test_brt_node import map_msg
+    from dds_driver import map_msg
 
     occ = np.zeros((30, 30), np.int8)  # a 3 m rolling window at 0.1 m with one lethal cell
     occ[20, 10] = 100
@@ -144,7 +144,7 @@ def forward(driver, linear: float) -> types.SimpleNamespace:
     return types.SimpleNamespace(linear=out.linear.x, angular=out.angular.z)
 
 
-def test_a_scan_source_stops_the_robot_before_what_only_the_laser_sees(model_stem):  # noqa: F811
+def test_a_scan_source_stops_the_robot_before_what_only_the_laser_sees(model_stem):
     """At FAR the map is empty for 9 m: only the laser sees the person 0.6 m ahead of the robot at 1 m/s, inside
     its stopping distance (0.5 m at 1 m/s²) plus the inflation.  An empty scan passes the command; the person's
     scan brakes it; a silent laser fails the node closed, naming the source."""
@@ -176,7 +176,7 @@ def test_a_scan_source_stops_the_robot_before_what_only_the_laser_sees(model_ste
             scanner.stop()
 
 
-def test_people_off_the_map_are_kept_at_the_motion_margin(model_stem):  # noqa: F811
+def test_people_off_the_map_are_kept_at_the_motion_margin(model_stem):
     """The same person 2 m ahead: with obstacle_speed_max 1 m/s (margin 1 × (1 s to stop + 0.05 + 0.5) = 1.55 m)
     the command towards them is changed; the static map's wall 9 m away is not grown."""
     with driver_and_node(model_stem, DOMAIN + 1, observation_sources=["scan"], obstacle_speed_max=1.0,
@@ -194,11 +194,11 @@ def test_people_off_the_map_are_kept_at_the_motion_margin(model_stem):  # noqa: 
             scanner.stop()
 
 
-def test_a_rolling_costmap_source_adds_its_cells_and_its_edge_is_no_wall(model_stem):  # noqa: F811
+def test_a_rolling_costmap_source_adds_its_cells_and_its_edge_is_no_wall(model_stem):
     """A 3 m × 3 m rolling costmap around the robot at FAR: empty, V at the robot stays above the 1.5 m to its
     edge (the map covers the robot there); with one lethal cell 1 m ahead, V falls below 1 m."""
+    from dds_driver import map_msg
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-    from test_brt_node import map_msg
 
     latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
     with driver_and_node(model_stem, DOMAIN + 2, observation_sources=["local"], obstacle_speed_max=0.0, **DIFF_DRIVE,

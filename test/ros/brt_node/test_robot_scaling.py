@@ -11,7 +11,7 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 
-from test_brt_node import DOMAIN, FAR, NEAR_WALL, driver_and_node, map_msg, model_stem, occupancy, ros, settle  # noqa: E402, F401  (ros, model_stem: the fixtures)
+from dds_driver import DOMAIN, FAR, NEAR_WALL, driver_and_node, map_msg, occupancy, settle  # noqa: E402
 
 from hjrno_ros.core.dynamics import CarParams  # noqa: E402
 from hjrno_ros.core.model_card import ModelCard  # noqa: E402
@@ -30,7 +30,7 @@ def cfg(**robot) -> NodeConfig:
     return NodeConfig(**{"robot_model": "car", **robot})
 
 
-def test_robot_parameters_map_onto_the_card_or_are_refused(model_stem):  # noqa: F811
+def test_robot_parameters_map_onto_the_card_or_are_refused(model_stem):
     card = ModelCard.load(model_stem)
     assert robot_params(card.dynamics, cfg()) == card.dynamics  # the defaults: the card's own car
     small = robot_params(card.dynamics, cfg(**SMALL))
@@ -49,7 +49,7 @@ def test_robot_parameters_map_onto_the_card_or_are_refused(model_stem):  # noqa:
     assert isinstance(NodeConfig.build(cfg(v_min=math.nan).as_dict(), startup=True), NodeConfig)
 
 
-def test_a_scaled_table_is_the_card_table_at_the_robot_size(model_stem):  # noqa: F811
+def test_a_scaled_table_is_the_card_table_at_the_robot_size(model_stem):
     """The small robot's table at (s·x, s·y, (s/τ)·v, θ) is s times the card's at (x, y, v, θ), and its gradient
     follows the chain rule (∂x the same, ∂v times τ, ∂θ times s)."""
     from hjrno_ros.learning.value_function import LearnedValueFunction
@@ -73,7 +73,7 @@ def test_a_scaled_table_is_the_card_table_at_the_robot_size(model_stem):  # noqa
     assert np.allclose(g_small[0], g_big[0] * [1.0, 1.0, tau, S], rtol=1e-4, atol=1e-6)
 
 
-def test_the_node_filters_a_smaller_robot_on_a_smaller_map(model_stem, ros):  # noqa: F811
+def test_the_node_filters_a_smaller_robot_on_a_smaller_map(model_stem, ros):
     """Over DDS: the same map at a quarter of the size and the small robot give a quarter of the card robot's V
     at the corresponding states (the module's node serves the card's robot)."""
     driver, _ = ros
@@ -113,7 +113,7 @@ def test_a_conditioned_product_card_covers_a_range_of_robots():
         covered_scaling(card, jackal)
 
 
-def test_a_forward_card_answers_reversing_states_by_symmetry(model_stem):  # noqa: F811
+def test_a_forward_card_answers_reversing_states_by_symmetry(model_stem):
     """V(x, y, −v, θ) = V(x, y, v, θ + π): the table at a reversing state is the forward table turned round."""
     from hjrno_ros.learning.value_function import LearnedValueFunction
 

@@ -14,11 +14,11 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 
+from dds_driver import DOMAIN, ROOT, wait_for  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
-from test_brt_node import DOMAIN, ROOT, wait_for  # noqa: E402
 
 from hjrno_ros.core import safety_filter  # noqa: E402
 from hjrno_ros.core.model_card import ModelCard  # noqa: E402
