@@ -293,6 +293,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
     return benchmarks.dispatch(args.what, Path(args.out), quick=args.quick, only=args.only, model=args.model,
                                episodes=args.episodes, seconds=args.seconds, scan_rate=args.scan_rate,
+                               obstacle_speed=args.obstacle_speed,
                                select={k: getattr(args, k) for k in ("robots", "maps", "drivers", "filters")})
 
 
@@ -484,6 +485,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", type=int, default=None, help="depot: episodes (200); nav: per case (3); people: (2)")
     p.add_argument("--scan-rate", type=float, default=0.0,
                    help="node bench: also send LaserScans at this rate, Hz, as an observation source (default: none)")
+    p.add_argument("--obstacle-speed", type=float, default=None,
+                   help="people bench: brt_node's obstacle_speed_max, m/s (default 1.0)")
     for name in ("robots", "maps", "drivers", "filters"):  # nav_bench.ROBOTS, MAPS, DRIVERS, FILTERS
         p.add_argument(f"--{name}", default=None, help=f"nav bench: comma-separated {name} (default: all)")
     p.set_defaults(func=cmd_bench)

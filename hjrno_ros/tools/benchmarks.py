@@ -212,7 +212,7 @@ def write_table(out: Path, stem: str, title: str, rows: list[dict], note: str) -
 
 def dispatch(what: str, out: Path, quick: bool = False, only: str | None = None, model: str | None = None,
              episodes: int | None = None, seconds: float | None = None, select: dict | None = None,
-             scan_rate: float = 0.0) -> int:
+             scan_rate: float = 0.0, obstacle_speed: float | None = None) -> int:
     """``hjrno bench WHAT``: the depot check, the navigation benchmark and the fuzz soak (each its own module), or
     :func:`run`'s benches.  ``select``: the navigation benchmark's robots, maps, drivers and filters."""
     if what == "nav":
@@ -223,7 +223,8 @@ def dispatch(what: str, out: Path, quick: bool = False, only: str | None = None,
     if what == "people":
         from hjrno_ros.tools import people_bench
 
-        return people_bench.run(out, episodes=episodes or 2, seconds=seconds or 40.0, model=model)
+        return people_bench.run(out, episodes=episodes or 2, seconds=seconds or 40.0, model=model,
+                                obstacle_speed_max=1.0 if obstacle_speed is None else obstacle_speed)
     episodes = 200 if episodes is None else episodes
     if what == "depot":
         from hjrno_ros.tools import depot_check

@@ -44,8 +44,9 @@ def people_for(nav_map: nav.NavMap, robot: nav.Robot, episode: nav.Episode, seed
 
 
 def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str = "plan1000001",
-        seconds: float = 40.0, model: str | None = None, progress=print) -> int:
-    """The benchmark; returns 1 when brt_node drove into a person."""
+        seconds: float = 40.0, model: str | None = None, obstacle_speed_max: float = 1.0, progress=print) -> int:
+    """The benchmark; returns 1 when brt_node drove into something.  Rows merge into ``out``/people.json by
+    (driver, filter, obstacle_speed_max)."""
     from hjrno_ros.ros.harness.irsim_base import IrSimBase, drive
     from hjrno_ros.studies.irsim_world import DiffDriveBase, IrSimWorld
     from hjrno_ros.tools.nav_bench import ROOT
@@ -65,7 +66,7 @@ def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str 
 
     runs: dict[tuple[str, str, bool], list[tuple]] = {}
     domain, started = free_domain(), time.perf_counter()
-    params = {**node_params(robot), "observation_sources": "[scan]"}
+    params = {**node_params(robot), "observation_sources": "[scan]", "obstacle_speed_max": obstacle_speed_max}
     with brt_node_process(domain, params, model) as (proc, tail):
         for driver_kind in DRIVERS:
             for people in (False, True):
@@ -88,7 +89,8 @@ def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str 
                     progress(f"{driver_kind} {name} people={people}: "
                              f"{sum(r.collided for r, _, _ in results)} collisions "
                              f"({time.perf_counter() - t0:.0f} s)")
-    rows = [summarize(driver_kind, name, runs[(driver_kind, name, True)], runs[(driver_kind, name, False)])
+    rows = [{**summarize(driver_kind, name, runs[(driver_kind, name, True)], runs[(driver_kind, name, False)]),
+             "obstacle_speed_max": obstacle_speed_max if name == "brt_node" else None}
             for driver_kind in DRIVERS for name in ("none", "brt_node")]
     write(Path(out), rows, {"episodes_per_case": episodes, "robot": robot_name, "map": map_name, "seconds": seconds,
                             "model": str(model), "wall_s": round(time.perf_counter() - started)})
@@ -136,13 +138,19 @@ def summarize(driver: str, name: str, with_people: list[tuple], without: list[tu
 
 
 def write(out: Path, rows: list[dict], run: dict) -> None:
+    """Merge ``rows`` into people.json (a rerun replaces its own rows) and render people.md."""
     out.mkdir(parents=True, exist_ok=True)
+    key = lambda r: (r["driver"], r["filter"], r["obstacle_speed_max"])  # noqa: E731
+    path = out / "people.json"
+    old = json.loads(path.read_text())["rows"] if path.is_file() else []
+    rows = [r for r in old if key(r) not in {key(n) for n in rows}] + rows
+    rows.sort(key=lambda r: (DRIVERS.index(r["driver"]), r["filter"] != "none", r["obstacle_speed_max"] or 0.0))
     report = {"machine": f"{platform.machine()}, Python {platform.python_version()}", "date": time.strftime("%Y-%m-%d"),
               "step_s": STEP, **run, "rows": rows}
     note = (f"`hjrno bench people` on {report['machine']}, {report['date']}: {run['robot']} on {run['map']}, "
             f"{run['episodes_per_case']} episodes per case of {run['seconds']:g} s, 4 social-force pedestrians at "
             "0.5-1.0 m/s (2 on the robot's route against it), IR-SIM's LiDAR at 10 Hz as brt_node's scan source "
-            "(obstacle_speed_max 1 m/s); none runs lockstep, brt_node over DDS in real time. collisions_moving: "
+            "(obstacle_speed_max per row); none runs lockstep, brt_node over DDS in real time. collisions_moving: "
             f"the robot moved (|v| > {MOVING} m/s) into the contact; collisions_stopped: a person walked into the "
             "robot at rest. min_gap: between the robot's and a person's disks. time to goal: against the same "
             "episodes without people, over the goals both reached.")
