@@ -128,10 +128,6 @@ class ObservationSource:
         self.error = ""
         self._version = 0
 
-    @property
-    def message_type(self) -> type:
-        return LaserScan if self.config.type == "scan" else OccupancyGrid
-
     def on_message(self, msg: Any) -> str | None:
         """Take a message; the rejection reason, or None."""
         try:
