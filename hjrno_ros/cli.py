@@ -483,10 +483,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", default=None, help="node, depot and nav benches: model stem (default: models/default)")
     p.add_argument("--seconds", type=float, default=None, help="fuzz: seconds (180); depot, nav, people: per episode")
     p.add_argument("--episodes", type=int, default=None, help="depot: episodes (200); nav: per case (3); people: (2)")
-    p.add_argument("--scan-rate", type=float, default=0.0,
-                   help="node bench: also send LaserScans at this rate, Hz, as an observation source (default: none)")
-    p.add_argument("--obstacle-speed", type=float, default=None,
-                   help="people bench: brt_node's obstacle_speed_max, m/s (default 1.0)")
+    p.add_argument("--scan-rate", type=float, default=0.0, help="node bench: also LaserScans at this rate, Hz")
+    p.add_argument("--obstacle-speed", type=float, default=None, help="people bench: obstacle_speed_max (1.0 m/s)")
     for name in ("robots", "maps", "drivers", "filters"):  # nav_bench.ROBOTS, MAPS, DRIVERS, FILTERS
         p.add_argument(f"--{name}", default=None, help=f"nav bench: comma-separated {name} (default: all)")
     p.set_defaults(func=cmd_bench)

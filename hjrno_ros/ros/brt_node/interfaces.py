@@ -1,5 +1,6 @@
 """The node's ROS interfaces, made on configure and destroyed on cleanup: publishers, subscriptions (with the
-QoS of docs/node.md), timers and the ``~/enable`` service, in callback groups that keep one writer of cmd_vel."""
+QoS of docs/node.md), timers and the ``~/enable`` service, in callback groups that keep one writer of cmd_vel;
+and the lifecycle service's refusal of transitions that do not exist."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped, Twist, TwistStamped
 from nav_msgs.msg import OccupancyGrid, Odometry
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import LaserScan
 from std_msgs.msg import Float32MultiArray, String
@@ -62,3 +64,24 @@ class Interfaces:
         for destroy, entity in reversed(self._made):
             destroy(entity)
         self._made.clear()
+
+
+def refuse_invalid_transitions(node: Any) -> None:
+    """Make the lifecycle node's change_state service answer a transition that does not exist from the present
+    state (activate while active, an unknown id) with success false and a warning; rclpy raises out of the
+    executor instead, which would end the node."""
+    service = getattr(node, "_service_change_state", None)
+    if service is None:
+        return
+    change_state = service.callback
+
+    def callback(request: Any, response: Any) -> Any:
+        try:
+            return change_state(request, response)
+        except _rclpy.RCLError as err:
+            node.get_logger().warning(f"lifecycle transition {request.transition.id} "
+                                      f"'{request.transition.label}' refused: {err}")
+            response.success = False
+            return response
+
+    service.callback = callback

@@ -28,7 +28,6 @@ from geometry_msgs.msg import PoseWithCovarianceStamped, Twist, TwistStamped
 from nav_msgs.msg import OccupancyGrid, Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.exceptions import ParameterUninitializedException
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from std_msgs.msg import String
@@ -38,7 +37,7 @@ from hjrno_ros.core import least_restrictive, safety_filter
 from hjrno_ros.ros.brt_node import messages, parameters, status
 from hjrno_ros.ros.brt_node.config import NodeConfig
 from hjrno_ros.ros.brt_node.inputs import MapData, MapInput, RobotState, StateInput
-from hjrno_ros.ros.brt_node.interfaces import Interfaces
+from hjrno_ros.ros.brt_node.interfaces import Interfaces, refuse_invalid_transitions
 from hjrno_ros.ros.brt_node.observation_sources import SOURCE_PARAMETERS, ObservationSource
 from hjrno_ros.ros.brt_node.refinement import Refinement
 from hjrno_ros.ros.brt_node.value_sources import load_model
@@ -73,9 +72,7 @@ class BrtNode(LifecycleNode):
         self.config = NodeConfig()  # the declared defaults until configure reads the parameters
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
-        change = getattr(self, "_service_change_state", None)
-        if change is not None:
-            change.callback = self._refusing(change.callback)
+        refuse_invalid_transitions(self)
 
     def _value(self, name: str) -> Any:
         """A parameter's value; None for one declared by type and never set (an empty list's default)."""
@@ -83,22 +80,6 @@ class BrtNode(LifecycleNode):
             return self.get_parameter(name).value
         except ParameterUninitializedException:
             return None
-
-    def _refusing(self, change_state: Callable[[Any, Any], Any]) -> Callable[[Any, Any], Any]:
-        """The change_state service answering a transition that does not exist from the present state (activate
-        while active, an unknown id) with success false and a warning; rclpy raises out of the executor instead,
-        which would end the node."""
-
-        def callback(request: Any, response: Any) -> Any:
-            try:
-                return change_state(request, response)
-            except _rclpy.RCLError as err:
-                self.get_logger().warning(f"lifecycle transition {request.transition.id} "
-                                          f"'{request.transition.label}' refused: {err}")
-                response.success = False
-                return response
-
-        return callback
 
     # ------------------------------------------------------------------ lifecycle
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
