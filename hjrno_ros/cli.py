@@ -291,10 +291,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def cmd_bench(args: argparse.Namespace) -> int:
     from hjrno_ros.tools import benchmarks
 
-    return benchmarks.dispatch(args.what, Path(args.out), quick=args.quick, only=args.only, model=args.model,
-                               episodes=args.episodes, seconds=args.seconds, scan_rate=args.scan_rate,
-                               obstacle_speed=args.obstacle_speed,
-                               select={k: getattr(args, k) for k in ("robots", "maps", "drivers", "filters")})
+    return benchmarks.dispatch_args(args)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -476,17 +473,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("bench", help="run a benchmark and write its results table")
-    p.add_argument("what", choices=["solver", "dataset", "node", "fuzz", "depot", "nav", "people"])
-    p.add_argument("--out", default="out/bench", help="results folder (default: out/bench)")
-    p.add_argument("--quick", action="store_true", help="smallest case only (smoke run)")
-    p.add_argument("--only", default=None, help="dataset bench: families; solver bench: problems (comma-separated)")
-    p.add_argument("--model", default=None, help="node, depot and nav benches: model stem (default: models/default)")
-    p.add_argument("--seconds", type=float, default=None, help="fuzz: seconds (180); depot, nav, people: per episode")
-    p.add_argument("--episodes", type=int, default=None, help="depot: episodes (200); nav: per case (3); people: (2)")
-    p.add_argument("--scan-rate", type=float, default=0.0, help="node bench: also LaserScans at this rate, Hz")
-    p.add_argument("--obstacle-speed", type=float, default=None, help="people bench: obstacle_speed_max (1.0 m/s)")
-    for name in ("robots", "maps", "drivers", "filters"):  # nav_bench.ROBOTS, MAPS, DRIVERS, FILTERS
-        p.add_argument(f"--{name}", default=None, help=f"nav bench: comma-separated {name} (default: all)")
+    from hjrno_ros.tools import benchmarks  # numpy only at import: the parser stays light
+
+    benchmarks.add_arguments(p)
     p.set_defaults(func=cmd_bench)
     return parser
 

@@ -210,6 +210,29 @@ def write_table(out: Path, stem: str, title: str, rows: list[dict], note: str) -
     return 0
 
 
+def add_arguments(p) -> None:
+    """``hjrno bench``'s arguments (an argparse parser)."""
+    p.add_argument("what", choices=["solver", "dataset", "node", "fuzz", "depot", "nav", "people"])
+    p.add_argument("--out", default="out/bench", help="results folder (default: out/bench)")
+    p.add_argument("--quick", action="store_true", help="smallest case only (smoke run)")
+    p.add_argument("--only", default=None, help="dataset bench: families; solver bench: problems (comma-separated)")
+    p.add_argument("--model", default=None, help="node, depot and nav benches: model stem (default: models/default)")
+    p.add_argument("--seconds", type=float, default=None, help="fuzz: seconds (180); depot, nav, people: per episode")
+    p.add_argument("--episodes", type=int, default=None, help="depot: episodes (200); nav: per case (3); people: (2)")
+    p.add_argument("--scan-rate", type=float, default=0.0, help="node bench: also LaserScans at this rate, Hz")
+    p.add_argument("--obstacle-speed", type=float, default=None, help="people bench: obstacle_speed_max (1.0 m/s)")
+    for name in ("robots", "maps", "drivers", "filters"):  # nav_bench.ROBOTS, MAPS, DRIVERS, FILTERS
+        p.add_argument(f"--{name}", default=None, help=f"nav bench: comma-separated {name} (default: all)")
+
+
+def dispatch_args(args) -> int:
+    """Run the bench that :func:`add_arguments`' parsed ``args`` name."""
+    return dispatch(args.what, Path(args.out), quick=args.quick, only=args.only, model=args.model,
+                    episodes=args.episodes, seconds=args.seconds, scan_rate=args.scan_rate,
+                    obstacle_speed=args.obstacle_speed,
+                    select={k: getattr(args, k) for k in ("robots", "maps", "drivers", "filters")})
+
+
 def dispatch(what: str, out: Path, quick: bool = False, only: str | None = None, model: str | None = None,
              episodes: int | None = None, seconds: float | None = None, select: dict | None = None,
              scan_rate: float = 0.0, obstacle_speed: float | None = None) -> int:

@@ -9,7 +9,7 @@ people, so that goals and time to goal compare with the same episodes on an empt
 
 Reported per (driver, filter, people): collisions split by the robot's speed at contact (IR-SIM's own check; moving:
 |v| > 0.02 m/s, else a person walked into a stopped robot), the least gap between the robot's and a person's disks,
-goals, time to goal against the same runs without people, and the stopped share.
+goals, time to goal against the same runs without people, and the stopped and fail-closed shares.
 """
 
 from __future__ import annotations
@@ -134,6 +134,7 @@ def summarize(driver: str, name: str, with_people: list[tuple], without: list[tu
         "time_to_goal_vs_no_people": round(sum(a for a, _ in ratios) / sum(b for _, b in ratios), 3) if ratios
         else None,
         "stopped_share": round(sum(r.stopped for r, _, _ in with_people) / max(steps, 1), 3),
+        "fail_closed_share": round(sum(r.fail_closed for r, _, _ in with_people) / max(steps, 1), 4),
     }
 
 
