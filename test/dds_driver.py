@@ -9,7 +9,6 @@ background thread.  The model is the bundled ``models/paper_cnn`` if present, el
 from __future__ import annotations
 
 import contextlib
-import json
 import math
 import os
 import subprocess
@@ -32,14 +31,14 @@ from rcl_interfaces.msg import Parameter as ParameterMsg  # noqa: E402
 from rcl_interfaces.msg import ParameterType, ParameterValue  # noqa: E402
 from rcl_interfaces.srv import SetParameters  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
-from std_msgs.msg import Float32MultiArray, String  # noqa: E402
-from std_srvs.srv import SetBool  # noqa: E402
+from std_msgs.msg import Float32MultiArray  # noqa: E402
 
 from hjrno_ros.learning import checkpoint  # noqa: E402
 from hjrno_ros.ros.brt_node.node import BrtNode  # noqa: E402
+from hjrno_ros.ros.harness.plants import HeldPlant  # noqa: E402
+from hjrno_ros.ros.harness.sim_base import Rates, SimBase  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DOMAIN = 1 + os.getpid() % 50  # Linux: ids <= 101 avoid the ephemeral port range
@@ -84,58 +83,73 @@ def model_stem(tmp_path_factory) -> Path:
     return tmp / "model"
 
 
-class Driver(Node):
-    """Publishes map, odometry (20 Hz, from its attributes) and commands; records the outputs."""
+class Driver(SimBase):
+    """The harness's base holding the robot where a test puts it (``pose`` (x, y, θ), ``v``, ``frame``; odometry at
+    20 Hz unless ``odom_on`` is false; quaternions scaled by ``q_scale``), sending Twist commands one at a time
+    (:meth:`command`) and recording every output, the value grid and value messages and the node's diagnostics."""
 
     def __init__(self, context):
-        super().__init__("brt_test_driver", context=context)
-        self.map_pub = self.create_publisher(OccupancyGrid, "map", MAP_QOS)
-        self.odom_pub = self.create_publisher(Odometry, "odom", 10)
-        self.cmd_pub = self.create_publisher(Twist, "cmd_vel_smoothed", 10)
+        self.held = HeldPlant(*FAR, 0.0, 0.5)
+        super().__init__(context, self.held, None, name="brt_test_driver", rates=Rates(0.05, 0.05), stamped=False,
+                         keep_grids=False)
         self.out: list[tuple[float, Twist]] = []
-        self.status: dict = {}
         self.grid: OccupancyGrid | None = None
         self.values: Float32MultiArray | None = None
         self.diagnostics: DiagnosticStatus | None = None
-        self.create_subscription(Twist, "cmd_vel", lambda m: self.out.append((time.monotonic(), m)), 50)
-        self.create_subscription(String, "brt/status", self._on_status, 10)
-        self.create_subscription(OccupancyGrid, "brt/value_grid", lambda m: setattr(self, "grid", m), MAP_QOS)
         self.create_subscription(Float32MultiArray, "brt/value", lambda m: setattr(self, "values", m), 1)
         self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
-        self.params = self.create_client(SetParameters, "/brt_node/set_parameters")
-        self.enable = self.create_client(SetBool, "/brt_node/enable")
-        self.pose, self.v, self.frame, self.odom_on = (*FAR, 0.0), 0.5, "map", True
+        self.params, self.enable = self.client("set_parameters"), self.client("enable")
+        self.frame, self.odom_on = "map", True
         self.q_scale = 1.0  # odometry quaternions scaled by this (a non-normalised quaternion when != 1)
         self.last_odom = 0.0
-        self.create_timer(0.05, self._odom)
 
-    def _on_status(self, msg: String) -> None:
-        self.status = json.loads(msg.data)
+    @property
+    def pose(self) -> tuple[float, float, float]:
+        return self.held.at
+
+    @pose.setter
+    def pose(self, pose: tuple[float, float, float]) -> None:
+        self.held.at = tuple(pose)
+
+    @property
+    def v(self) -> float:
+        return self.held.v
+
+    @v.setter
+    def v(self, v: float) -> None:
+        self.held.v = v
+
+    @property
+    def status(self) -> dict:
+        return self.log.status
+
+    @status.setter
+    def status(self, status: dict) -> None:
+        self.log.status = status
+
+    def on_filtered(self, msg: Twist) -> None:
+        self.out.append((time.monotonic(), msg))
+        super().on_filtered(msg)
+
+    def on_grid(self, msg: OccupancyGrid) -> None:
+        self.grid = msg
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
             if status.name.startswith("brt_node:"):
                 self.diagnostics = status
 
-    def _odom(self) -> None:
-        if not self.odom_on:
-            return
-        msg = Odometry()
+    def odometry(self) -> Odometry:
+        msg = super().odometry()
         msg.header.frame_id = self.frame
-        msg.header.stamp = self.get_clock().now().to_msg()
-        x, y, th = self.pose
-        msg.pose.pose.position.x, msg.pose.pose.position.y = x, y
         q = msg.pose.pose.orientation
-        q.z, q.w = self.q_scale * math.sin(th / 2), self.q_scale * math.cos(th / 2)
-        msg.twist.twist.linear.x = self.v
-        self.odom_pub.publish(msg)
-        self.last_odom = time.monotonic()
+        q.z, q.w = self.q_scale * q.z, self.q_scale * q.w
+        return msg
 
-    def call(self, client, request, timeout: float = 5.0):
-        assert client.wait_for_service(timeout_sec=timeout)
-        future = client.call_async(request)
-        wait_for(future.done, timeout)
-        return future.result()
+    def publish_odometry(self) -> None:
+        if self.odom_on:
+            super().publish_odometry()
+            self.last_odom = time.monotonic()
 
     def set_param(self, name: str, value) -> tuple[bool, str]:
         kind = {float: (ParameterType.PARAMETER_DOUBLE, "double_value"),

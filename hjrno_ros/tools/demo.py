@@ -71,7 +71,7 @@ def run(out: Path, seconds: float = 60.0, seed: int = EPISODE_SEED, model: str |
         use_filter: bool = True, gif: bool = True) -> int:
     """Run the demo; print and write the summary and figures; 1 on a collision of the robot shown, else 0."""
     from hjrno_ros.ros.brt_node.value_sources import resolve_model
-    from hjrno_ros.ros.harness.irsim_base import IrSimBase, drive
+    from hjrno_ros.ros.harness.irsim_base import drive, episode_result, irsim_base
     from hjrno_ros.studies.plotting import demo_animation
     from hjrno_ros.tools.nav_bench import node_params, world_for
     from hjrno_ros.tools.node_process import brt_node_process, free_domain
@@ -96,12 +96,12 @@ def run(out: Path, seconds: float = 60.0, seed: int = EPISODE_SEED, model: str |
                         raise RuntimeError(f"brt_node exited with code {proc.returncode}: {tail()}")
                     return base_log.status.get("state") in ("ok", "unsafe_idle")
 
-                base = drive(domain, lambda context: IrSimBase(world, nav_map, driver(nav_map, static, sd, robot,
+                base = drive(domain, lambda context: irsim_base(world, nav_map, driver(nav_map, static, sd, robot,
                                                                                       episode), STEP,
                                                                context=context), seconds, ready)
         finally:
             world.close()
-        result, log = base.result(), base.log
+        result, log = episode_result(base), base.log
         lat = np.asarray(log.latency_s) * 1e3
         summary["with_brt_node"] = {**_outcome(result), "model": stem.name,
                                     "epsilon": log.status.get("epsilon"), "commands": log.commands,

@@ -144,19 +144,19 @@ def draw_episodes(world: DepotWorld, n: int, seed: int = 0) -> list[dict]:
 
 def episode_row(i: int, episode: dict, log, world: DepotWorld) -> dict:
     """One episode's numbers from its log (see :class:`hjrno_ros.ros.harness.episode_driver.EpisodeLog`)."""
-    states = np.array([s[1:5] for s in log.states]) if log.states else np.zeros((0, 4))
+    states = np.array([s[1:5] for s in log.trace]) if log.trace else np.zeros((0, 4))
     clear = world.clearance(states[:, :2]) if len(states) else np.array([world.clearance(
         np.asarray(episode["start"][:2])[None])[0]])
     lat = np.asarray(log.latency_s) * 1e3
     return {
         "episode": i, "driver": episode["driver"], "start": [round(v, 3) for v in episode["start"]],
         "outcome": log.outcome or "ok", "collision": log.outcome == "collision", "exit": log.outcome == "exit",
-        "driven_s": round(log.states[-1][0], 2) if log.states else 0.0,
+        "driven_s": round(log.trace[-1][0], 2) if log.trace else 0.0,
         "distance_m": round(float(np.linalg.norm(np.diff(states[:, :2], axis=0), axis=-1).sum()), 2),
         "min_clearance_m": round(float(clear.min()), 3),
         "final_xy": [round(float(v), 3) for v in states[-1, :2]] if len(states) else None,
         "goals_reached": len(log.goals),
-        "commands": log.commands, "interventions": log.interventions,
+        "commands": log.commands, "interventions": log.changed,
         "latency_ms_p50": round(float(np.percentile(lat, 50)), 2) if lat.size else None,
         "latency_ms_p95": round(float(np.percentile(lat, 95)), 2) if lat.size else None,
         "ready_s": round(log.ready_s, 2),

@@ -75,7 +75,7 @@ def lockstep_filter(name: str, nav_map: nav.NavMap, sd: np.ndarray, robot: nav.R
 
 def run_dds(cases: list, robot: nav.Robot, model: str | Path, duration: float) -> list[nav.EpisodeResult]:
     """brt_node over DDS in real time: one node process for the robot serves every (map, episode, driver) case."""
-    from hjrno_ros.ros.harness.irsim_base import IrSimBase, drive
+    from hjrno_ros.ros.harness.irsim_base import drive, episode_result, irsim_base
     from hjrno_ros.tools.node_process import brt_node_process, free_domain
 
     domain, out = free_domain(), []
@@ -93,7 +93,7 @@ def run_dds(cases: list, robot: nav.Robot, model: str | Path, duration: float) -
                         and np.hypot(s["value_grid"]["center"][0] - x0, s["value_grid"]["center"][1] - y0) < 1e-3)
 
             try:
-                base = drive(domain, lambda context, w=world, d=driver, m=nav_map: IrSimBase(w, m, d, STEP,
+                base = drive(domain, lambda context, w=world, d=driver, m=nav_map: irsim_base(w, m, d, STEP,
                                                                                            context=context),
                              duration, ready)
             except RuntimeError as err:
@@ -102,7 +102,7 @@ def run_dds(cases: list, robot: nav.Robot, model: str | Path, duration: float) -
                 world.close()
             if proc.poll() is not None:
                 raise RuntimeError(f"brt_node exited: {tail()}")
-            out.append(base.result())
+            out.append(episode_result(base))
     return out
 
 

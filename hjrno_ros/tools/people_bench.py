@@ -47,7 +47,6 @@ def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str 
         seconds: float = 40.0, model: str | None = None, obstacle_speed_max: float = 1.0, progress=print) -> int:
     """The benchmark; returns 1 when brt_node drove into something.  Rows merge into ``out``/people.json by
     (driver, filter, obstacle_speed_max)."""
-    from hjrno_ros.ros.harness.irsim_base import IrSimBase, drive
     from hjrno_ros.studies.irsim_world import DiffDriveBase, IrSimWorld
     from hjrno_ros.tools.nav_bench import ROOT
     from hjrno_ros.tools.node_process import brt_node_process, free_domain
@@ -79,7 +78,7 @@ def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str 
                             if name == "none":
                                 r = nav.run_episode(w, driver, nav.no_filter, robot, seconds, STEP)
                             else:
-                                r = _drive(drive, IrSimBase, w, nav_map, driver, e, domain, seconds, tail)
+                                r = _drive(w, nav_map, driver, e, domain, seconds, tail)
                             results.append((r, w.contact_speed, w.min_people_clearance))
                         finally:
                             w.close()
@@ -98,7 +97,9 @@ def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str 
     return int(any(r["collisions_moving"] for r in rows if r["filter"] != "none"))
 
 
-def _drive(drive, IrSimBase, w, nav_map, driver, episode, domain, seconds, tail) -> nav.EpisodeResult:
+def _drive(w, nav_map, driver, episode, domain, seconds, tail) -> nav.EpisodeResult:
+    from hjrno_ros.ros.harness.irsim_base import drive, episode_result, irsim_base  # rclpy only when it runs
+
     x0, y0 = episode.start[:2]
 
     def ready(log) -> bool:
@@ -107,11 +108,11 @@ def _drive(drive, IrSimBase, w, nav_map, driver, episode, domain, seconds, tail)
                 and abs(at.get("y", 1e9) - y0) < 1e-3)
 
     try:
-        base = drive(domain, lambda context: IrSimBase(w, nav_map, driver, STEP, context=context,
+        base = drive(domain, lambda context: irsim_base(w, nav_map, driver, STEP, context=context,
                                                        scan_every=SCAN_EVERY), seconds, ready)
     except RuntimeError as err:
         raise RuntimeError(f"{err} (node: {tail()})") from None
-    return base.result()
+    return episode_result(base)
 
 
 def summarize(driver: str, name: str, with_people: list[tuple], without: list[tuple]) -> dict:

@@ -1,12 +1,11 @@
 """Many closed-loop episodes against one running brt_node over DDS, on an occupancy map (``hjrno bench depot``).
 
-:class:`EpisodeRobot` is the demo's :class:`~hjrno_ros.ros.harness.sim_robot.SimRobot` (latched map, odometry in
-the map frame at ``odom_rate``, TwistStamped nominal commands at ``cmd_rate``, the dynamic Dubins car
-integrated in real time with the *filtered* command and a random disturbance ‖d‖ ≤ δ·|v| + d₀, a filtered
-command older than ``cmd_timeout`` counting as zero) with three changes: the world is an occupancy
-raster (a point robot collides when it enters an obstacle cell, and leaves the map when it crosses the
-map's edge), the careless driver is chosen per episode, and the robot is reset between episodes, so one
-node process serves many episodes.
+The base is a :class:`~hjrno_ros.ros.harness.sim_base.SimBase` with a
+:class:`~hjrno_ros.ros.harness.plants.KinematicPlant` (the card's robot integrated in real time with the *filtered*
+command and a random disturbance ‖d‖ ≤ δ·|v| + d₀; odometry at 50 Hz, TwistStamped nominal commands at 20 Hz, a
+filtered command older than 0.25 s counting as zero) on an occupancy raster: a point robot collides when it enters
+an obstacle cell and leaves the map when it crosses the map's edge.  The careless driver is chosen per episode, and
+the robot is reset between episodes, so one node process serves many episodes.
 
 Drivers: ``straight`` and ``edge`` command v_max with zero turn rate (the episode's start heading; ``edge``
 episodes start pointed at the map's edge); ``goal`` and ``goal_off_map`` drive the demo's goal-seeking
@@ -25,91 +24,87 @@ from typing import Any
 import numpy as np
 import rclpy
 from geometry_msgs.msg import TwistStamped
-from nav_msgs.msg import OccupancyGrid
 from rclpy.executors import SingleThreadedExecutor
 
 from hjrno_ros.core.dynamics import RobotParams
-from hjrno_ros.ros.harness.sim_robot import Log, SimRobot
+from hjrno_ros.ros.harness.plants import KinematicPlant
+from hjrno_ros.ros.harness.sim_base import BaseLog, SimBase
 from hjrno_ros.studies import closed_loop
+from hjrno_ros.studies.closed_loop import EpisodeSettings
 
 DRIVERS = ("straight", "edge", "goal", "goal_off_map")
 STRAIGHT_DRIVERS = ("straight", "edge")
 
 
 @dataclasses.dataclass
-class EpisodeLog(Log):
-    """The demo's log plus the episode's outcome: "collision", "exit" or None (the time ran out)."""
+class EpisodeLog(BaseLog):
+    """The base's log plus the episode's goals and start."""
 
-    outcome: str | None = None
+    goals: list = dataclasses.field(default_factory=list)  # (t, x, y) when the next goal was set
     ready_s: float = 0.0  # s from the reset until brt_node filtered at the new start
     start_value: float | None = None  # brt_node's V at the start (its status when it first filtered there)
 
 
-class EpisodeRobot(SimRobot):
-    """A SimRobot on an occupancy raster whose driver and start change per episode (:meth:`reset`)."""
+class RasterEvent:
+    """"exit" beyond the raster's edge, "collision" inside an obstacle cell (bool ``[ix, iy]``), else None."""
 
-    def __init__(self, obstacle: np.ndarray, occupancy: np.ndarray, resolution: float, origin: tuple[float, float],
-                 params: RobotParams, seed: int = 0, context: Any = None, **kwargs: Any) -> None:
-        """``obstacle``: bool ``[ix, iy]``, the cells a robot must not enter (occupied and unknown);
-        ``occupancy``: the int8 raster published as the map."""
-        self.obstacle = np.asarray(obstacle, bool)
-        self.driver = "straight"
-        self._episode_ns = 0  # ROS time of the reset: older filtered commands are ignored
-        super().__init__([], params, occupancy, resolution, origin, np.zeros(4), np.zeros((1, 2)), seed=seed,
-                         context=context, **kwargs)
-        self.resolution, self.origin = float(resolution), np.asarray(origin, float)
-        self.log = EpisodeLog()
+    def __init__(self, obstacle: np.ndarray, resolution: float, origin: tuple[float, float]) -> None:
+        self.obstacle, self.resolution, self.origin = np.asarray(obstacle, bool), float(resolution), np.asarray(origin)
 
-    def reset(self, start: np.ndarray, driver: str, goals: np.ndarray | None = None) -> None:
-        """Stop, put the robot at ``start`` (x, y, v, θ) with a fresh log, and set the episode's driver."""
-        if driver not in DRIVERS:
-            raise ValueError(f"unknown driver {driver!r}; one of {', '.join(DRIVERS)}")
-        self.running = False
-        self.x = np.asarray(start, float).reshape(1, 4).copy()
-        self.driver = driver
-        self.goals = np.asarray(goals if goals is not None and len(goals) else self.x[:, :2], float).reshape(-1, 2)
-        self.goal_index = 0
-        self.log = EpisodeLog()
-        self._filtered, self._filtered_at, self._intervened = np.zeros(2), -math.inf, False
-        self.commands.forget()
-        self._episode_ns = self.get_clock().now().nanoseconds
-
-    def event(self, xy: np.ndarray) -> str | None:
-        """"exit" beyond the map's edge, "collision" inside an obstacle cell, else None."""
+    def __call__(self, xy: np.ndarray) -> str | None:
         ij = np.floor((np.asarray(xy, float) - self.origin) / self.resolution).astype(int)
         if np.any(ij < 0) or np.any(ij >= self.obstacle.shape):
             return "exit"
         return "collision" if self.obstacle[ij[0], ij[1]] else None
 
-    def _ended(self) -> bool:
-        return self.log.outcome is not None
 
-    def _end(self, outcome: str, t: float) -> None:
-        self.log.outcome, self.log.collided_at = outcome, t
+class CarelessDriver:
+    """One of DRIVERS, blind to obstacles: v_max straight on, or the goal-seeking twist to ``goals`` in turn."""
 
-    def _seeks_goal(self) -> bool:
-        return self.driver not in STRAIGHT_DRIVERS
+    def __init__(self, params: RobotParams, kind: str, goals: np.ndarray, log: EpisodeLog) -> None:
+        if kind not in DRIVERS:
+            raise ValueError(f"unknown driver {kind!r}; one of {', '.join(DRIVERS)}")
+        self.params, self.kind, self.goals, self.log, self.index = params, kind, goals, log, 0
 
-    def _command(self) -> None:
-        """The episode's careless nominal command."""
-        if not self.running or self.log.outcome is not None:
-            return
-        if self.driver in STRAIGHT_DRIVERS:
-            nominal = np.array([self.params.v_max, 0.0])
-        else:
-            nominal = closed_loop.nominal_twist(self.params, self.x, self.goals[self.goal_index][None],
-                                                np.array(["goal"]))[0]
-        self.log.commands += 1
-        self.commands.send(nominal)
+    def __call__(self, state: np.ndarray, t: float) -> np.ndarray:
+        if self.kind in STRAIGHT_DRIVERS:
+            return np.array([self.params.v_max, 0.0])
+        if np.linalg.norm(state[:2] - self.goals[self.index]) <= EpisodeSettings.goal_tolerance:
+            self.index = (self.index + 1) % len(self.goals)
+            self.log.goals.append((t, *self.goals[self.index]))
+        return closed_loop.nominal_twist(self.params, state[None], self.goals[self.index][None],
+                                         np.array(["goal"]))[0]
 
-    def _on_cmd(self, msg: TwistStamped) -> None:
+
+class EpisodeBase(SimBase):
+    """A SimBase on an occupancy raster whose driver and start change per episode (:meth:`reset`)."""
+
+    def __init__(self, obstacle: np.ndarray, occupancy: np.ndarray, resolution: float, origin: tuple[float, float],
+                 params: RobotParams, seed: int = 0, context: Any = None) -> None:
+        """``obstacle``: bool ``[ix, iy]``, the cells a robot must not enter (occupied and unknown);
+        ``occupancy``: the int8 raster published as the map."""
+        plant = KinematicPlant(params, np.zeros(4), RasterEvent(obstacle, resolution, origin), seed=seed)
+        super().__init__(context, plant, None, name="episode_base", keep_grids=False)
+        self.params = params
+        self._episode_ns = 0  # ROS time of the reset: older filtered commands are ignored
+        self.publish_map(occupancy, resolution, origin)
+
+    def reset(self, start: np.ndarray, driver: str, goals: np.ndarray | None = None) -> None:
+        """Stop, put the robot at ``start`` (x, y, v, θ) with a fresh log, and set the episode's driver."""
+        self.running = False
+        self.plant.place(start)
+        goals = np.asarray(goals if goals is not None and len(goals) else np.asarray(start)[None, :2], float)
+        self.log = EpisodeLog()
+        self.driver = CarelessDriver(self.params, driver, goals.reshape(-1, 2), self.log)
+        self.filtered, self.filtered_at, self._changed, self.nominal = np.zeros(2), -math.inf, False, None
+        self.commands.forget()
+        self._episode_ns = self.get_clock().now().nanoseconds
+
+    def on_filtered(self, msg: TwistStamped) -> None:
         stamp = msg.header.stamp
         if stamp.sec * 1_000_000_000 + stamp.nanosec < self._episode_ns:  # answers the previous episode
             return
-        super()._on_cmd(msg)
-
-    def _on_grid(self, msg: OccupancyGrid) -> None:
-        """The value grids are not kept (the demo's figures need them, the episodes do not)."""
+        super().on_filtered(msg)
 
 
 def filtering_at(status: dict, start: np.ndarray, tolerance: float = 0.05) -> bool:
@@ -126,13 +121,13 @@ def filtering_at(status: dict, start: np.ndarray, tolerance: float = 0.05) -> bo
 def run_episodes(domain: int, robot_args: dict, episodes: list[dict], seconds: float,
                  check: Callable[[], None] = lambda: None, ready_timeout: float = 60.0,
                  done: Callable[[int, EpisodeLog], None] = lambda i, log: None) -> list[EpisodeLog]:
-    """Create an EpisodeRobot on ``domain`` (``robot_args``: its constructor's keywords) and run ``episodes``
+    """Create an EpisodeBase on ``domain`` (``robot_args``: its constructor's keywords) and run ``episodes``
     (each {"driver", "start": (x, y, v, θ), "goals": [(x, y), ...]}) one after the other against the running
     brt_node: reset, wait until the node filters at the start, drive for ``seconds`` or until a collision or
     exit.  ``check()`` raises if the node is gone; ``done(i, log)`` is called after each episode."""
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain)
-    robot = EpisodeRobot(context=context, **robot_args)
+    robot = EpisodeBase(context=context, **robot_args)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(robot)
     logs = []
@@ -151,8 +146,7 @@ def run_episodes(domain: int, robot_args: dict, episodes: list[dict], seconds: f
                 executor.spin_once(timeout_sec=0.05)
             robot.log.ready_s = time.monotonic() - t_reset
             robot.log.start_value = robot.log.status.get("value")
-            robot.t0 = time.monotonic()
-            robot.running = True
+            robot.begin()
             end = robot.t0 + seconds
             while time.monotonic() < end and robot.log.outcome is None:
                 executor.spin_once(timeout_sec=0.01)

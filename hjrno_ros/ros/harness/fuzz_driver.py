@@ -31,7 +31,6 @@ from nav_msgs.msg import OccupancyGrid, Odometry
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
-from rclpy.node import Node
 from std_msgs.msg import String
 
 from hjrno_ros.core.dynamics import RobotParams
@@ -40,9 +39,9 @@ from hjrno_ros.core.safety_filter import turn_bound
 from hjrno_ros.ros.brt_node.messages import LATCHED, finite, planar_yaw
 from hjrno_ros.ros.brt_node.parameters import PARAMETERS
 from hjrno_ros.ros.brt_node.value_sources import resolve_model
+from hjrno_ros.ros.harness.sim_base import SimBase
 from hjrno_ros.ros.harness.spin import spin_in_background
 
-NODE_NAME = "brt_node"
 POSE_TOPIC = "amcl_pose"  # the node under test runs with pose_topic:=amcl_pose, so poses are fuzzed too
 RES, ORIGIN, SIZE = 0.1, (-10.0, -10.0), 200  # the valid map: 20 m × 20 m
 RACE_WINDOW = 2.0  # s: odometry speeds and control periods sent this long before an output may be the node's
@@ -73,20 +72,16 @@ def quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, float, flo
             cr * cp * cy + sr * sp * sy)
 
 
-class FuzzDriver(Node):
-    """Publishes the fuzz inputs (``step``) and checks the node's outputs as they arrive."""
+class FuzzDriver(SimBase):
+    """The harness's base without a plant (it publishes everything itself, ``step``): the fuzz inputs out, and the
+    node's outputs checked as they arrive."""
 
     def __init__(self, context: Any, seed: int, limits: RobotParams) -> None:
-        super().__init__("brt_fuzz_driver", context=context)
+        super().__init__(context, None, name="brt_fuzz_driver", stamped=False, keep_grids=False)
         self.rng = np.random.default_rng(seed)
         self.limits = limits
-        self.map_pub = self.create_publisher(OccupancyGrid, "map", LATCHED)
-        self.odom_pub = self.create_publisher(Odometry, "odom", 10)
         self.pose_pub = self.create_publisher(PoseWithCovarianceStamped, POSE_TOPIC, LATCHED)
-        self.cmd_pub = self.create_publisher(Twist, "cmd_vel_smoothed", 10)
-        self.params = self.create_client(SetParameters, f"/{NODE_NAME}/set_parameters")
-        self.create_subscription(Twist, "cmd_vel", self._on_out, 100)
-        self.create_subscription(String, "brt/status", self._on_status, 10)
+        self.params = self.client("set_parameters")
         self._lock = threading.Lock()
         self.sent = collections.Counter({c: 0 for c in CLASSES})
         self.speeds: collections.deque[tuple[float, float]] = collections.deque([(0.0, 0.0)], maxlen=2000)
@@ -106,7 +101,7 @@ class FuzzDriver(Node):
         self.maps = [self._valid_map(k) for k in range(4)]
 
     # ------------------------------------------------------------------ outputs
-    def _on_status(self, msg: String) -> None:
+    def on_status(self, msg: String) -> None:
         now = time.monotonic()
         try:
             status = json.loads(msg.data)
@@ -124,7 +119,7 @@ class FuzzDriver(Node):
         before = [v for t, v in history if t < now - RACE_WINDOW]
         return recent + before[-1:]
 
-    def _on_out(self, msg: Twist) -> None:
+    def on_filtered(self, msg: Twist) -> None:
         now = time.monotonic()
         p = self.limits
         lin, ang = msg.linear.x, msg.angular.z

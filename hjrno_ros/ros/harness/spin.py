@@ -3,19 +3,13 @@ the calling thread for a stretch of real time once brt_node filters (the simulat
 
 from __future__ import annotations
 
-import json
 import threading
 import time
 from collections.abc import Callable
 from typing import Any
 
 import rclpy
-from geometry_msgs.msg import TwistStamped
-from nav_msgs.msg import OccupancyGrid, Odometry
 from rclpy.executors import SingleThreadedExecutor
-from std_msgs.msg import String
-
-from hjrno_ros.ros.brt_node.messages import LATCHED
 
 
 def spin_in_background(domain_id: int, make: Callable[[Any], Any]) -> tuple[Any, Callable[[], None]]:
@@ -66,14 +60,3 @@ def drive_base(domain_id: int, make: Callable[[Any], Any], seconds: float, ready
         executor.shutdown(timeout_sec=2.0)
         base.destroy_node()
         rclpy.shutdown(context=context)
-
-
-def base_topics(base: Any, on_cmd: Callable[[TwistStamped], None], on_grid: Callable[[OccupancyGrid], None]
-                ) -> tuple[Any, Any, Any]:
-    """A simulated base's side of brt_node's topics: (map, odom, cmd_vel_smoothed) publishers; the filtered
-    commands go to ``on_cmd``, the value grids to ``on_grid``, the status JSON into ``base.log.status``."""
-    base.create_subscription(TwistStamped, "cmd_vel", on_cmd, 50)
-    base.create_subscription(OccupancyGrid, "brt/value_grid", on_grid, LATCHED)
-    base.create_subscription(String, "brt/status", lambda m: setattr(base.log, "status", json.loads(m.data)), 10)
-    return (base.create_publisher(OccupancyGrid, "map", LATCHED), base.create_publisher(Odometry, "odom", 10),
-            base.create_publisher(TwistStamped, "cmd_vel_smoothed", 10))

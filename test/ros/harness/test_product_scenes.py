@@ -16,14 +16,12 @@ rclpy = pytest.importorskip("rclpy")
 
 from dds_driver import DOMAIN, ROOT, wait_for  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
-from std_msgs.msg import String  # noqa: E402
 
 from hjrno_ros.core import safety_filter  # noqa: E402
 from hjrno_ros.core.model_card import ModelCard  # noqa: E402
 from hjrno_ros.ros.brt_node.node import BrtNode  # noqa: E402
-from hjrno_ros.ros.harness.scene_driver import SceneBase  # noqa: E402
+from hjrno_ros.ros.harness import scene_driver  # noqa: E402
 from hjrno_ros.studies import product_scenes  # noqa: E402
 
 CAR, CAR_SCENES = product_scenes.ROBOTS["car"]  # a base that reverses up to 0.5 m/s
@@ -44,13 +42,9 @@ def scene_node(request, solver_card):
     robot = CAR if request.param == "car" else DIFF_DRIVE
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=DOMAIN + 45)
-    base = SceneBase(context, robot)
-    status: dict = {}
-    probe = Node("scene_probe", context=context)
-    probe.create_subscription(String, "brt/status", lambda m: status.update(json.loads(m.data)), 10)
+    base = scene_driver.scene_base(context, robot)
     executor = SingleThreadedExecutor(context=context)
-    for node in (base, probe):
-        executor.add_node(node)
+    executor.add_node(base)
     spinner = threading.Thread(target=executor.spin, daemon=True)
     spinner.start()
     params = ({"model_path": str(solver_card), "refine_horizon": 60.0, "refine_stage": 5.0, "refine_cpus": 1,
@@ -63,13 +57,13 @@ def scene_node(request, solver_card):
     brt.start()
     executor.add_node(brt)
     try:
-        base.place(product_scenes.SCENES[0].start)
-        assert wait_for(lambda: status.get("value_source") == source, 240.0), status
-        assert source == "operator" or status["refinement"]["settled"], status
-        yield base, status, request.param
+        scene_driver.place(base, product_scenes.SCENES[0].start)
+        assert wait_for(lambda: base.log.status.get("value_source") == source, 240.0), base.log.status
+        assert source == "operator" or base.log.status["refinement"]["settled"], base.log.status
+        yield base, request.param
     finally:
         executor.shutdown(timeout_sec=2.0)
-        for node in (brt, base, probe):
+        for node in (brt, base):
             node.destroy_node()
         rclpy.shutdown(context=context)
         spinner.join(timeout=2.0)
@@ -121,16 +115,21 @@ SCENE_NAMES = sorted({s.name for s in CAR_SCENES + DIFF_DRIVE_SCENES})
 
 @pytest.mark.parametrize("name", SCENE_NAMES)
 def test_scene_over_dds(scene_node, name):
-    base, status, robot = scene_node
+    base, robot = scene_node
     scenes = {s.name: s for s in (CAR_SCENES if robot == "car" else DIFF_DRIVE_SCENES)}
     if name not in scenes:
         return  # a scene of the other robot model
     scene = scenes[name]
-    base.place(scene.start)
-    assert wait_for(lambda: status.get("robot") is not None and abs(status["robot"]["x"] - scene.start[0]) < 1e-3
-                    and abs(status["robot"]["y"] - scene.start[1]) < 1e-3, 5.0), status
-    stops = status["counts"]["stops"]
-    states, outputs = base.run(scene)
+    scene_driver.place(base, scene.start)
+
+    def at_start() -> bool:
+        at = base.log.status.get("robot")
+        return at is not None and abs(at["x"] - scene.start[0]) < 1e-3 and abs(at["y"] - scene.start[1]) < 1e-3
+
+    assert wait_for(at_start, 5.0), base.log.status
+    stops = base.log.status["counts"]["stops"]
+    states, outputs = scene_driver.run(base, scene)
+    status = base.log.status
     assert len(outputs) > 0.5 * scene.seconds / 0.05, (len(outputs), status)  # the node answered
     problems = product_scenes.judge(scene, states, outputs)
     assert not problems, (scene.expect, problems, status)
