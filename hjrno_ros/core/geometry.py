@@ -278,6 +278,29 @@ def sample_raster(raster: np.ndarray, origin: tuple[float, float], resolution: f
     return out
 
 
+def sample_walled(sd: np.ndarray, origin: tuple[float, float], resolution: float, points: np.ndarray) -> np.ndarray:
+    """Bilinear samples of a signed-distance raster ``sd`` ``[ix, iy]`` at ``points`` (..., 2), with everything
+    beyond the map's rectangle [origin, origin + shape·resolution] a wall.
+
+    Beyond the rectangle a point takes minus its Euclidean distance to it (lower still past an occupied edge cell,
+    by that cell's depth): the signed distance of that world, where :func:`sample_raster`'s constant ``outside``
+    is a plateau the operator never saw in training (docs/results.md, "The map's edge").  Between the outermost
+    cell centres and the edge the value falls by the (Chebyshev) distance past the centres, to 0 on a free edge
+    cell's outer side, so the join is continuous and never rises outward.  Meant for a raster that already walls
+    the edge (:func:`occupancy_signed_distance` with ``unknown_is_obstacle``: ≤ ½·resolution at the outermost
+    centres); for any raster the value beyond the edge is ≤ 0 and ≤ that at the edge.  Cost follows the points.
+    """
+    pts = np.asarray(points, float)
+    half = 0.5 * resolution
+    first = np.asarray(origin, float) + half
+    nearest = np.clip(pts, first, first + (np.asarray(sd.shape) - 1) * resolution)  # the outermost centres' box
+    past = np.abs(pts - nearest)  # per axis, beyond the outermost centres
+    band = np.minimum(past, half)  # the part within the map's rectangle
+    beyond = np.hypot(*np.moveaxis(past - band, -1, 0))  # the distance to the map's rectangle
+    out = sample_raster(sd, origin, resolution, nearest) - band.max(-1) - beyond
+    return np.where(beyond > 0, np.minimum(out, -beyond), out)
+
+
 def rasterize(shape: Shape, origin: tuple[float, float], spacing: float, size: tuple[int, int]) -> np.ndarray:
     """Obstacle mask ``[ix, iy]`` of a shape on a cell-centred raster."""
     x = origin[0] + (np.arange(size[0]) + 0.5) * spacing

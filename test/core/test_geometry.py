@@ -141,3 +141,79 @@ def test_grid_target_minus_half_cell_diagonal_is_conservative():
     plain, inflated = (ValueTable(grid, room.target(grid) - np.float32(c)).value(states) - exact for c in (0.0, r))
     assert plain[exact <= 0].max() > 0.15  # free in the table, inside an obstacle in fact
     assert inflated.max() <= 1e-5
+
+
+# ------------------------------------------------------------------------------------------ beyond the map's edge
+EDGE_RES, EDGE_ORIGIN, EDGE_SHAPE = 0.1, (-1.0, 0.5), (30, 20)  # the map [-1, 2] x [0.5, 2.5]
+EDGE_HI = (EDGE_ORIGIN[0] + EDGE_SHAPE[0] * EDGE_RES, EDGE_ORIGIN[1] + EDGE_SHAPE[1] * EDGE_RES)
+
+
+def walled(occ: np.ndarray, points) -> np.ndarray:
+    sd = geo.occupancy_signed_distance(occ, EDGE_RES)  # unknown_is_obstacle: the edge is a wall
+    return geo.sample_walled(sd, EDGE_ORIGIN, EDGE_RES, np.asarray(points, float))
+
+
+def test_beyond_a_free_edge_the_value_is_minus_the_distance_to_the_map():
+    """A free map: beyond each side the value falls linearly, −d at d from the edge; beyond a corner it is minus
+    the Euclidean distance to the corner; at the edge 0 (the wall's side), from the outermost centres' ½ cell."""
+    free = np.zeros(EDGE_SHAPE, np.int8)
+    d = np.array([0.0, 0.01, 0.05, 0.1, 0.37, 1.0, 2.5])
+    mid_y = 1.5
+    left = walled(free, np.column_stack([EDGE_ORIGIN[0] - d, np.full_like(d, mid_y)]))
+    top = walled(free, np.column_stack([np.full_like(d, 0.3), EDGE_HI[1] + d]))
+    np.testing.assert_allclose(left, -d, atol=1e-9)
+    np.testing.assert_allclose(top, -d, atol=1e-9)
+    corner = np.array([[EDGE_HI[0] + 0.3, EDGE_ORIGIN[1] - 0.4], [EDGE_ORIGIN[0] - 1.2, EDGE_HI[1] + 0.5]])
+    np.testing.assert_allclose(walled(free, corner), [-0.5, -1.3], atol=1e-9)
+    # from the outermost centre (½ cell in, value ½ cell) down to 0 at the edge, then on down: one straight line
+    x = EDGE_ORIGIN[0] + np.linspace(0.5, -1.0, 61) * EDGE_RES
+    line = walled(free, np.column_stack([x, np.full_like(x, mid_y)]))
+    np.testing.assert_allclose(line, x - EDGE_ORIGIN[0], atol=1e-9)
+
+
+def test_beyond_the_edge_is_the_walled_worlds_signed_distance():
+    """Random obstacles, some on the edge: beyond the map the value is that of the world walled all around
+    (the occupancy padded with 30 occupied cells, its own distance transform) within a cell, where the −resolution
+    plateau was up to 3 m off; it is continuous across the edge, never rises outward, is ≤ 0 and ≤ its value at the
+    edge, and from one cell out it is at or below the old plateau."""
+    rng = np.random.default_rng(5)
+    occ = np.where(rng.random(EDGE_SHAPE) < 0.15, 100, 0).astype(np.int8)
+    pad = 30
+    world = geo.signed_distance_from_mask(np.pad(occ >= 50, pad, constant_values=True), EDGE_RES)
+    world_origin = (EDGE_ORIGIN[0] - pad * EDGE_RES, EDGE_ORIGIN[1] - pad * EDGE_RES)
+    lo, hi = np.asarray(EDGE_ORIGIN), np.asarray(EDGE_HI)
+    pts = rng.uniform(lo - 2.5, hi + 2.5, (20000, 2))
+    outside = np.any((pts < lo) | (pts > hi), -1)
+    distance = np.hypot(*np.maximum(np.maximum(lo - pts, pts - hi), 0).T)  # to the map's rectangle
+    got = walled(occ, pts)
+    truth = geo.sample_raster(world, world_origin, EDGE_RES, pts)
+    sd = geo.occupancy_signed_distance(occ, EDGE_RES)
+    plateau = geo.sample_raster(sd, EDGE_ORIGIN, EDGE_RES, pts, outside=-EDGE_RES)
+    assert np.abs(got - truth)[outside].max() <= EDGE_RES
+    assert np.abs(plateau - truth)[outside].max() > 2.0  # what the plateau did
+    assert np.all(got[outside] <= -distance[outside] + 1e-12)
+    assert np.all(got[distance >= EDGE_RES] <= plateau[distance >= EDGE_RES])
+    on_edge = np.clip(pts, lo, hi)  # each point's nearest point of the map's edge (for the outside ones)
+    assert np.all(got[outside] <= walled(occ, on_edge)[outside] + 1e-12)
+    # along outward rays from the outermost centres across the edge: continuous, never rising
+    t = np.linspace(0.0, 3.0, 301) * EDGE_RES  # 0.01 cell steps, from the centre to 2.5 cells out
+    for ix, iy in [(0, 3), (0, 11), (29, 7), (29, 19), (12, 0), (5, 19)]:
+        centre = lo + (np.array([ix, iy]) + 0.5) * EDGE_RES
+        out = np.array([-1.0 if ix == 0 else 1.0 if ix == 29 else 0.0, -1.0 if iy == 0 else 1.0 if iy == 19 else 0.0])
+        ray = walled(occ, centre + t[:, None] * out / np.linalg.norm(out))
+        assert ray[0] == pytest.approx(sd[ix, iy]) and np.all(np.diff(ray) <= 1e-12), (ix, iy)
+        assert np.abs(np.diff(ray)).max() <= np.sqrt(2) * (t[1] - t[0]) + 1e-12, (ix, iy)
+
+
+def test_sample_walled_keeps_the_inside_and_far_points():
+    """Within the outermost centres it is sample_raster; far and infinite points are far inside the wall."""
+    sd = geo.occupancy_signed_distance(np.zeros(EDGE_SHAPE, np.int8), EDGE_RES)
+    inner = np.asarray(EDGE_ORIGIN) + RNG.uniform(0.5, np.array(EDGE_SHAPE) - 0.5, (500, 2)) * EDGE_RES
+    np.testing.assert_array_equal(geo.sample_walled(sd, EDGE_ORIGIN, EDGE_RES, inner),
+                                  geo.sample_raster(sd, EDGE_ORIGIN, EDGE_RES, inner))
+    far = geo.sample_walled(sd, EDGE_ORIGIN, EDGE_RES, np.array([[-1e20, 1.0], [np.inf, 1.0], [0.0, -np.inf]]))
+    assert far[0] == pytest.approx(-1e20) and far[1] == far[2] == -np.inf
+    huge = np.broadcast_to(np.float32(0.025), (100_000, 100_000))  # a zero-stride view: whole, it would be 80 GB
+    window = np.stack(np.meshgrid(np.linspace(-5, 5, 32), np.linspace(200, 210, 32), indexing="ij"), -1)
+    got = geo.sample_walled(huge, (0.0, 0.0), 0.05, window)
+    np.testing.assert_allclose(got, np.minimum(0.025, window[..., 0]), atol=1e-7)

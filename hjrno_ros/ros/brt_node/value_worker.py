@@ -64,6 +64,15 @@ def table_state(state: RobotState, table_theta: float, v_lo: float, v_hi: float)
     return s
 
 
+def map_distance(m: MapData, points: np.ndarray) -> np.ndarray:
+    """The map's signed distance (m) at x-y ``points`` (..., 2).  Beyond the map, with ``unknown_is_obstacle``, that of
+    a wall at the map's edge (minus the distance to the map: :func:`geometry.sample_walled`); without it, the nearest
+    edge cell's value."""
+    if m.unknown_is_obstacle:
+        return geometry.sample_walled(m.sd, m.origin, m.resolution, points)
+    return geometry.sample_raster(m.sd, m.origin, m.resolution, points)
+
+
 def lower_thread_priority(nice: int) -> None:
     """Give the calling thread a higher nice value (Linux: per thread); a no-op where not allowed."""
     try:
@@ -160,8 +169,7 @@ class ValueWorker:
     def clearance(self, m: MapData, points: np.ndarray, obstacles: tuple[PointObstacles, ...] = ()) -> np.ndarray:
         """The braking bound's clearance at x-y ``points``: the map's signed distance, or the live ``obstacles``'
         distance where less, minus the footprint and the map's own interpolation margin (m)."""
-        outside = -m.resolution if m.unknown_is_obstacle else None
-        sd = geometry.sample_raster(m.sd, m.origin, m.resolution, points, outside=outside)
+        sd = map_distance(m, points)
         for obstacle in obstacles:
             sd = np.minimum(sd, obstacle.distance(points))
         return sd - self.inflation(m.resolution, model_grid=False)
@@ -180,17 +188,14 @@ class ValueWorker:
         """The fresh sources' obstacles in the map frame, their versions, or why a required source is unusable."""
         if not self.sources:
             return (), (), ""
-        outside = -m.resolution if m.unknown_is_obstacle else None
         obstacles, versions, reason = live_obstacles(
             self.sources, now, m.frame_id, lambda stamp: self.states.pose_at(stamp, state),
-            lambda pts: geometry.sample_raster(m.sd, m.origin, m.resolution, pts, outside=outside),
-            self.moving_margin())
+            lambda pts: map_distance(m, pts), self.moving_margin())
         return tuple(obstacles), versions, reason
 
     def v0(self, m: MapData, points: np.ndarray) -> np.ndarray:
         """V0 at x-y ``points`` (..., 2): the map's signed distance minus the inflation (float32, m)."""
-        outside = -m.resolution if m.unknown_is_obstacle else None
-        v0 = geometry.sample_raster(m.sd, m.origin, m.resolution, points, outside=outside)
+        v0 = map_distance(m, points)
         return (v0 - self.inflation(m.resolution)).astype(np.float32)
 
     def step(self) -> None:
