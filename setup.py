@@ -18,7 +18,8 @@ setup(
         ("share/" + package_name + "/launch", glob("launch/*.launch.py")),
         ("share/" + package_name + "/rviz", glob("rviz/*.rviz")),
         ("share/" + package_name + "/models",
-         [f for f in glob("models/*.json") + glob("models/*.safetensors") if ".train." not in f]),
+         [f for f in glob("models/*.json") + glob("models/*.safetensors") + glob("models/*.onnx")
+          if ".train." not in f]),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

@@ -2,7 +2,7 @@
 
     hjrno solve --scenario disk|room|indoor|air3d [--robot paper|product|diff_drive] [--grid 40,40,12,20] [--out DIR]
     hjrno generate --experiment NAME [--config FILE] [--out DIR] [--shard K/N] [--workers W]
-    hjrno merge | show | train | ensemble | evaluate | calibrate | simulate | demo   (see --help of each)
+    hjrno merge | show | train | ensemble | export-onnx | evaluate | calibrate | simulate | demo   (see --help)
     hjrno bench solver|dataset|node|fuzz|depot|nav [--out DIR]
 
 Results tables (evaluate, simulate, bench) go to ``out/bench`` unless ``--out`` says otherwise.
@@ -184,6 +184,16 @@ def cmd_ensemble(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_export_onnx(args: argparse.Namespace) -> int:
+    """Export trained models to ONNX beside their weights (what brt_node runs without torch), recorded in the card."""
+    from hjrno_ros.learning.onnx_export import export_model
+
+    for stem in args.model:
+        record = export_model(stem)
+        print(f"wrote {Path(stem).with_name(record['file'])} (sha256 {record['sha256'][:12]}…) and its card entry")
+    return 0
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from hjrno_ros.learning import checkpoint
     from hjrno_ros.studies import evaluation
@@ -212,26 +222,12 @@ def _models(items: list[str] | None) -> dict[str, str]:
     return {label: stem for label, stem in pairs}
 
 
-def _data_folders(data: str | None, stem: str, unconverged: bool) -> list[str]:
-    """``--data``, or else the card's test folders that can be halved (a one-room split is left out, with a note)."""
-    from hjrno_ros.learning import checkpoint
-    from hjrno_ros.studies import held_out
-
-    if data:
-        return data.split(",")
-    folders = checkpoint.folders_with_test_split(checkpoint.load_card(stem))
-    kept = [f for f in folders if held_out.has_halves(f, unconverged)]
-    for f in folders:
-        if f not in kept:
-            print(f"{f}: fewer than 2 held-out scenarios, left out (choose folders with --data)", file=sys.stderr)
-    return kept or folders  # none usable: the full list, so that loading names the first problem
-
-
 def cmd_calibrate(args: argparse.Namespace) -> int:
     """Split-conformal ε for a model, written into its card (the node's default margin)."""
+    from hjrno_ros.studies import held_out
     from hjrno_ros.studies.calibration import calibrate_model
 
-    folders = _data_folders(args.data, args.model, args.allow_unconverged)
+    folders = held_out.data_folders(args.data, args.model, args.allow_unconverged)
     entry = calibrate_model(args.model, folders, args.alpha, args.beta, args.draws, args.seed, args.margin,
                             write=not args.dry_run, unconverged=args.allow_unconverged,
                             average=args.symmetry_average, frames=args.member_frames, refine=args.refine)
@@ -259,12 +255,12 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         return product_scenes.main(args.out)
     import torch
 
-    from hjrno_ros.studies import filter_study, plotting
+    from hjrno_ros.studies import filter_study, held_out, plotting
     from hjrno_ros.studies.closed_loop import EpisodeSettings
 
     torch.set_num_threads(args.threads)
     models = _models(args.model)
-    folders = _data_folders(args.data, next(iter(models.values())), args.allow_unconverged)
+    folders = held_out.data_folders(args.data, next(iter(models.values())), args.allow_unconverged)
     study = filter_study.run_study(folders, models, args.episodes, args.seed, args.truth_epsilon, args.part,
                                    EpisodeSettings(duration=args.duration, careless=args.careless),
                                    filters=args.filters.split(",") if args.filters else None,
@@ -383,6 +379,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "(lower where they disagree; default 0, the mean)")
     p.add_argument("--out", required=True, help="model stem of the ensemble")
     p.set_defaults(func=cmd_ensemble)
+    p = sub.add_parser("export-onnx", help="export models to ONNX for brt_node's onnxruntime (train does it too)")
+    p.add_argument("--model", action="append", required=True, help="model stem (repeat for several)")
+    p.set_defaults(func=cmd_export_onnx)
 
     p = sub.add_parser("evaluate", help="paper-style metrics of a trained model; updates the results table")
     p.add_argument("--model", required=True, help="model stem or .safetensors/.json path (--superres: comma list)")

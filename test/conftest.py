@@ -31,9 +31,13 @@ def trained(ci_data, tmp_path_factory):
 
 
 def copy_model(stem, folder: Path) -> Path:
-    """A copy of a model (weights + card) as ``folder/model``, to change its card freely."""
+    """A copy of a model (weights + card, and the ONNX file its card lists) as ``folder/model``, to change its card
+    freely."""
     for src in checkpoint.paths(stem):
         (folder / ("model" + src.suffix)).write_bytes(src.read_bytes())
+    onnx = checkpoint.load_card(stem).get("onnx")
+    if onnx:
+        (folder / onnx["file"]).write_bytes(checkpoint.paths(stem)[1].with_name(onnx["file"]).read_bytes())
     return folder / "model"
 
 

@@ -64,7 +64,8 @@ def test_colcon_build_installs_a_runnable_brt_node(tmp_path):
                  share / "launch" / "brt_node.launch.py", share / "rviz" / "brt_node.rviz"):
         assert path.is_file(), path
     assert os.access(exe, os.X_OK)
-    bundled = [f for f in [*ROOT.glob("models/*.json"), *ROOT.glob("models/*.safetensors")] if ".train." not in f.name]
+    bundled = [f for f in [*ROOT.glob("models/*.json"), *ROOT.glob("models/*.safetensors"), *ROOT.glob("models/*.onnx")]
+               if ".train." not in f.name]
     assert bundled, "models/ should ship the default model"
     for model_file in bundled:
         assert (share / "models" / model_file.name).is_file(), model_file

@@ -19,10 +19,11 @@ PACKAGE = ROOT / "hjrno_ros"
 HEAVY = ("jax", "hj_reachability", "torch", "rclpy")
 # Bottom to top; a module may import its own layer and the ones before it.  ``ros.brt_node`` (the node)
 # sits below ``ros.harness`` (the simulated robots and drivers that exercise it).
-LAYERS = ("base", "core", "truth", "datasets", "learning", "studies", "ros", "ros.brt_node", "ros.harness", "tools",
-          "cli")
-# The learned value source and what it runs: the operators, their checkpoints and input slices (no training).
-NODE_MAY_LOAD = ("hjrno_ros.core", "hjrno_ros.ros.brt_node", "hjrno_ros.learning.value_function",
+LAYERS = ("base", "core", "inference", "truth", "datasets", "learning", "studies", "ros", "ros.brt_node", "ros.harness",
+          "tools", "cli")
+# The learned value source and what runs it: onnxruntime, or torch's operators, checkpoints and input slices (no
+# training; torch only for a card without an ONNX export).
+NODE_MAY_LOAD = ("hjrno_ros.core", "hjrno_ros.inference", "hjrno_ros.ros.brt_node", "hjrno_ros.learning.value_function",
                  "hjrno_ros.learning.checkpoint", "hjrno_ros.learning.operators", "hjrno_ros.learning.slices")
 
 
@@ -148,3 +149,17 @@ def test_node_loads_only_the_core_its_value_sources_and_itself():
 @pytest.mark.parametrize("package", ["truth", "datasets", "learning", "studies", "tools"])
 def test_no_package_below_ros_loads_rclpy(package):
     assert "rclpy" not in loaded_after(package_modules(package))
+
+
+def test_the_node_runs_its_bundled_default_without_torch():
+    """The node's modules and its bundled default loaded the node's way (an ONNX export in the card: onnxruntime),
+    one whole table predicted: torch never imported."""
+    code = ("import sys\nimport numpy as np\n"
+            "from hjrno_ros.ros.brt_node.node import BrtNode\n"
+            "from hjrno_ros.ros.brt_node.config import NodeConfig\n"
+            "from hjrno_ros.ros.brt_node.value_sources import load_model\n"
+            "card, vf, stem = load_model(NodeConfig())\n"
+            "table = vf.table(np.ones(vf.shape, np.float32))\n"
+            "print(type(vf).__name__, table.shape, bool(np.isfinite(table).all()), 'torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True)
+    assert out.stdout.split() == ["OperatorValues", "(32,", "32,", "9,", "16)", "True", "False"], out.stdout

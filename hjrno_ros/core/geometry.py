@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from typing import Protocol
 
 import numpy as np
-from scipy import interpolate, ndimage, signal
+from scipy import ndimage
 
 from hjrno_ros.core.grids import GridSpec
 
@@ -167,6 +167,8 @@ class ClosedSpline:
     def boundary(self, n: int = _BOUNDARY_SAMPLES) -> np.ndarray:
         v = np.asarray(self.points)
         closed = np.vstack([v, v[:1]])
+        from scipy import interpolate  # offline shapes only: the node never loads it
+
         tck, _ = interpolate.splprep([closed[:, 0], closed[:, 1]], s=0, per=1, k=3)
         x, y = interpolate.splev(np.linspace(0, 1, n, endpoint=False), tck)
         return np.stack([x, y], -1)
@@ -335,6 +337,8 @@ def air3d_collision_sdf(evader: Shape, pursuer: Shape, grid: GridSpec, supersamp
     out = np.empty(grid.shape, np.float32)
     for k, psi in enumerate(grid.axis(2)):
         kernel = _reflected_rotated_kernel(pursuer, psi, h)
+        from scipy import signal  # Air3D targets only
+
         dilated = signal.fftconvolve(evader_mask.astype(float), kernel, mode="same") > 0.5
         sd = signed_distance_from_mask(dilated, h)
         out[:, :, k] = sample_raster(sd, tuple(lo), h, nodes)

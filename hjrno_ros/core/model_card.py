@@ -7,8 +7,9 @@ were trained for (``dynamics``: ``model`` names the equations, the other fields 
 from before the product model lists the paper car's {a_max, kappa_max, d_max, v_min, v_max} and reads as
 the paper model; an Air3D model's speeds and turn rates), the calibrated
 margins (``epsilon``; ``refine_epsilon`` from the refined stage ``refine_calibration.horizon_s``),
-metrics, data and the command that reproduces it.  Reading it never imports torch: the node checks a
-card before it pays for loading weights.  Every problem is one ``ValueError`` line naming the field.
+metrics, data, the command that reproduces it, and the network's ONNX export (``onnx``: file beside the card, its
+SHA-256, input and output names and shapes) for runtimes without torch.  Reading it never imports torch: the
+node checks a card before it pays for loading weights.  Every problem is one ``ValueError`` line naming the field.
 """
 
 from __future__ import annotations
@@ -89,6 +90,52 @@ def _margin(value: Any, name: str, where: str) -> float | None:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value < 0:
         raise ValueError(f"{where}: field '{name}' must be a finite number >= 0 or null, got {value!r}")
     return float(value)
+
+
+@dataclasses.dataclass(frozen=True)
+class OnnxFile:
+    """The network exported to ONNX (the card's ``onnx``): ``file`` beside the card, its ``sha256``, the input and
+    output tensors' names and shapes ("batch": the dynamic first axis), the opset, and what it was exported from
+    (``network``: the weights' SHA-256 and the card's ``symmetry_average`` and ``member_frames`` then, so an export
+    that predates new weights or a new wrapping is refused)."""
+
+    file: str
+    sha256: str
+    input_name: str
+    input_shape: tuple
+    output_name: str
+    output_shape: tuple
+    opset: int
+    network: dict
+
+    def as_dict(self) -> dict:
+        return {"file": self.file, "sha256": self.sha256, "input": {"name": self.input_name,
+                                                                    "shape": list(self.input_shape)},
+                "output": {"name": self.output_name, "shape": list(self.output_shape)}, "opset": self.opset,
+                "network": dict(self.network)}
+
+
+def _onnx(d: dict, where: str, channels: tuple[int, int], shape: tuple[int, int]) -> OnnxFile | None:
+    """The card's ``onnx`` entry, checked against its own ``channels`` (in, out) and x-y ``shape``; None if absent."""
+    entry = _optional(d, "onnx", dict, where, None)
+    if entry is None:
+        return None
+    name = _field(entry, "file", str, where, "onnx.")
+    digest = _field(entry, "sha256", str, where, "onnx.")
+    if not name.endswith(".onnx") or Path(name).name != name:
+        raise ValueError(f"{where}: field 'onnx.file' must be a file name ending in .onnx, got {name!r}")
+    if len(digest) != 64 or any(c not in "0123456789abcdef" for c in digest):
+        raise ValueError(f"{where}: field 'onnx.sha256' must be 64 lowercase hex digits, got {digest!r}")
+    tensors = []
+    for part, channel in (("input", channels[0]), ("output", channels[1])):
+        t = _field(entry, part, dict, where, "onnx.")
+        expected = ["batch", channel, *shape]
+        if _field(t, "shape", list, where, f"onnx.{part}.") != expected:
+            raise ValueError(f"{where}: field 'onnx.{part}.shape' is {t['shape']!r}, but the card's config, inputs "
+                             f"and grid give {expected!r}")
+        tensors.append((_field(t, "name", str, where, f"onnx.{part}."), tuple(expected)))
+    network = _field(entry, "network", dict, where, "onnx.")
+    return OnnxFile(name, digest, *tensors[0], *tensors[1], _field(entry, "opset", int, where, "onnx."), network)
 
 
 def _refine_stage(d: dict, where: str = "<card>") -> tuple[float, float] | None:
@@ -178,6 +225,7 @@ class ModelCard:
     data: dict
     source: Path
     parameters: int | None = None  # trainable real scalars (count_parameters), as training recorded them
+    onnx: OnnxFile | None = None  # the network exported to ONNX, when the card lists it
     training: dict = dataclasses.field(default_factory=dict)  # training facts: wall_s, peak_rss_mb, history, ...
 
     @classmethod
@@ -217,6 +265,13 @@ class ModelCard:
         stage = _refine_stage(d, where)
         frames = _optional(d, "member_frames", list, where, None)
         command = _optional(d, "command", str, where, None)
+        table = inputs.get("table")
+        if table is not None and not (isinstance(table, list) and len(table) == 2 and all(
+                isinstance(n, int) and not isinstance(n, bool) and n > 0 for n in table)):
+            raise ValueError(f"{where}: field 'inputs.table' must be two positive integers (nv, ntheta), got "
+                             f"{table!r}")
+        out_channels = table[0] * table[1] if table else 1
+        onnx = _onnx(d, where, (in_channels, out_channels), tuple(grid.shape[:2])) if kind != "solver" else None
         return cls(kind=kind, config=config, inputs=inputs, grid=grid,
                    window=(grid.hi[0] - grid.lo[0], grid.hi[1] - grid.lo[1]), dynamics=dynamics,
                    epsilon=_margin(d.get("epsilon"), "epsilon", where),
@@ -226,7 +281,7 @@ class ModelCard:
                    metrics=dict(_optional(d, "metrics", dict, where, {})),
                    dataset=dict(_optional(d, "dataset", dict, where, {})), command=command, data=d,
                    source=Path(source), parameters=_optional(d, "parameters", int, where, None),
-                   training=dict(_optional(d, "training", dict, where, {})))
+                   training=dict(_optional(d, "training", dict, where, {})), onnx=onnx)
 
     @classmethod
     def solver(cls, dynamics: RobotParams, cell: float, speeds: int = 9, headings: int = 16, window: float = 10.0,

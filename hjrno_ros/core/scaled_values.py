@@ -51,7 +51,7 @@ class ScaledValueFunction:
         self.grid: GridSpec = scaling.grid_to_robot(vf.grid)
         self.window = tuple(w * scaling.length for w in vf.window)
         self.shape = vf.shape
-        self.whole_table, self.predicts = bool(vf.whole_table), bool(vf.predicts)
+        self.whole_table, self.predicts, self.runtime = bool(vf.whole_table), bool(vf.predicts), vf.runtime
 
     def window_points(self, center: tuple[float, float], shape: tuple[int, int] | None = None) -> np.ndarray:
         s = self.scaling.length

@@ -1,7 +1,8 @@
 """What the node reads values from (numpy only): the interface of a learned operator
-(``learning.value_function.LearnedValueFunction``), of the same seen at another robot's size
-(:class:`~hjrno_ros.core.scaled_values.ScaledValueFunction`) and of a solver card, which has no operator
-(``ros.model_files.SolverGrid``: its tables come from the node's background solver only)."""
+(:class:`~hjrno_ros.core.operator_values.OperatorValues`, its network run by onnxruntime or torch), of the same
+seen at another robot's size (:class:`~hjrno_ros.core.scaled_values.ScaledValueFunction`) and of a solver card,
+which has no operator (``ros.brt_node.value_sources.SolverGrid``: its tables come from the node's background
+solver only)."""
 
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ class ValueSource(Protocol):
     shape: tuple[int, int]  # x-y nodes of V0
     whole_table: bool  # each table holds every speed and heading of the window
     predicts: bool  # False: no operator (a solver card): the node waits for the solver's table
+    runtime: str  # what computes the values: "onnxruntime", "torch" or "solver"
 
     def window_points(self, center: tuple[float, float], shape: tuple[int, int] | None = None) -> np.ndarray:
         """The x-y nodes ``(nx, ny, 2)`` of the window centred at ``center``, where V0 is sampled."""

@@ -16,6 +16,7 @@ from pathlib import Path
 
 from hjrno_ros import versions
 from hjrno_ros.learning import checkpoint
+from hjrno_ros.learning.onnx_export import export_model
 from hjrno_ros.learning.operators import build_model, count_parameters
 
 SHARED = ("inputs", "grid", "window", "dynamics")  # card entries every member must have alike
@@ -57,4 +58,5 @@ def combine(stems: list[str], out: str | Path, command: str, pessimism: float = 
                         for s, c in zip(stems, cards, strict=True)],
             "epsilon": None, "command": command, "versions": versions.versions()}
     weights, _ = checkpoint.save(out, {f"model.{k}": v for k, v in model.state_dict().items()}, card)
+    export_model(out)
     return weights

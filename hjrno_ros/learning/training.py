@@ -25,6 +25,7 @@ from hjrno_ros import versions
 from hjrno_ros.core.similarity import Coverage, number_names
 from hjrno_ros.datasets.dataset import load_split
 from hjrno_ros.learning import checkpoint
+from hjrno_ros.learning.onnx_export import export_model
 from hjrno_ros.learning.operators import build_model, count_parameters
 from hjrno_ros.learning.slices import (
     SliceSet,
@@ -199,6 +200,7 @@ def train(cfg: TrainConfig, progress: bool = True, command: str | None = None) -
     card["metrics"] = {"train_rel_l2_slices": history[-1]["train_rel_l2"] if history else math.nan,
                        "test_rel_l2_slices": history[-1]["test_rel_l2"] if history else math.nan}
     weights, _ = checkpoint.save(cfg.out, {f"model.{k}": v for k, v in model.state_dict().items()}, card)
+    export_model(cfg.out)  # the ONNX file beside the weights: brt_node runs it without torch
     return weights
 
 

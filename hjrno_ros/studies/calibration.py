@@ -129,6 +129,7 @@ def calibrate_model(stem, folders: list, alpha: float, beta: float, n: int, seed
     them (brt_node's refine_horizon) instead, and writes ``refine_epsilon`` and ``refine_calibration``:
     the card's ε, for the operator alone, stays as it is."""
     from hjrno_ros.learning import checkpoint
+    from hjrno_ros.learning.onnx_export import refresh_export
     from hjrno_ros.studies import held_out
 
     if not (np.isfinite(refine) and refine >= 0):
@@ -157,4 +158,5 @@ def calibrate_model(stem, folders: list, alpha: float, beta: float, n: int, seed
     elif write:
         checkpoint.update_card(stem, {"epsilon": result.epsilon, "symmetry_average": averaged,
                                       "member_frames": frames or None, "calibration": entry})
+        refresh_export(stem)  # the ONNX export follows the card's symmetry averaging and member frames
     return entry

@@ -76,6 +76,23 @@ def has_halves(folder: str | Path, unconverged: bool = False) -> bool:
     return len(split.scenarios) >= 2
 
 
+def data_folders(data: str | None, stem: str, unconverged: bool) -> list[str]:
+    """``data`` (comma-separated folders), or else the model card's test folders that can be halved (a one-room
+    split is left out, with a note on stderr)."""
+    import sys
+
+    from hjrno_ros.learning import checkpoint
+
+    if data:
+        return data.split(",")
+    folders = checkpoint.folders_with_test_split(checkpoint.load_card(stem))
+    kept = [f for f in folders if has_halves(f, unconverged)]
+    for f in folders:
+        if f not in kept:
+            print(f"{f}: fewer than 2 held-out scenarios, left out (choose folders with --data)", file=sys.stderr)
+    return kept or folders  # none usable: the full list, so that loading names the first problem
+
+
 def refine(solved: list[Solved], predicted: list[np.ndarray], horizon: float) -> list[np.ndarray]:
     """Each scenario's predicted table after ``horizon`` simulated s of the solver warm-started from it
     (what brt_node's ``refine_horizon`` does over a map)."""

@@ -19,9 +19,9 @@ BUNDLED = ("paper_cnn", "v5")
 
 @pytest.fixture(scope="module")
 def base() -> dict:
-    """The bundled v5 card without its calibration: a plain, valid car card."""
+    """The bundled v5 card without its calibration and ONNX export: a plain, valid car card."""
     card = load_card(ROOT / "models" / "v5")
-    for key in ("epsilon", "refine_epsilon", "refine_calibration", "calibration", "member_frames"):
+    for key in ("epsilon", "refine_epsilon", "refine_calibration", "calibration", "member_frames", "onnx"):
         card.pop(key, None)
     return card
 
@@ -239,6 +239,11 @@ def test_a_card_that_contradicts_what_the_weights_were_trained_for_is_refused(tm
     checkpoint.load_typed(stem)  # unchanged: loads
     card = load_card(stem)
     change(card)
+    if card["grid"]["shape"][:2] != [32, 32]:  # the ONNX export's shapes refuse the new grid first
+        checkpoint.paths(stem)[1].write_text(json.dumps(card))
+        with pytest.raises(ValueError, match="field 'onnx.input.shape'"):
+            checkpoint.load_typed(stem)
+    card.pop("onnx")  # the weights' own record, without the export
     checkpoint.paths(stem)[1].write_text(json.dumps(card))
     with pytest.raises(ValueError, match=f"field '{field}'") as err:
         checkpoint.load_typed(stem)

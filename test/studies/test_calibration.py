@@ -140,7 +140,6 @@ def test_held_out_halves_and_unconverged_worlds(ci_data, trained, tmp_path):
 
     _, stem = trained
 
-    from hjrno_ros.cli import _data_folders
     from hjrno_ros.studies import held_out
 
     full = tmp_path / "full"
@@ -165,9 +164,9 @@ def test_held_out_halves_and_unconverged_worlds(ci_data, trained, tmp_path):
         assert len(held_out.load([ci_data], "all", unconverged=True)) == 2
         assert not held_out.has_halves(ci_data) and held_out.has_halves(ci_data, unconverged=True)
         # calibrate/simulate without --data: the card's folder that cannot be halved is left out
-        assert _data_folders(None, str(model), False) == [str(full)]
-        assert _data_folders(None, str(model), True) == [str(full), str(ci_data)]
-        assert _data_folders(f"{ci_data}", str(model), False) == [str(ci_data)]  # chosen: kept, refused later
+        assert held_out.data_folders(None, str(model), False) == [str(full)]
+        assert held_out.data_folders(None, str(model), True) == [str(full), str(ci_data)]
+        assert held_out.data_folders(f"{ci_data}", str(model), False) == [str(ci_data)]  # chosen: kept, refused later
         with pytest.raises(ValueError):  # the calibration half lost its only scenario
             calibration.calibrate_model(stem, [ci_data], 0.05, 0.05, 2000, write=False)
         entry = calibration.calibrate_model(stem, [ci_data], 0.05, 0.05, 2000, write=False, unconverged=True)

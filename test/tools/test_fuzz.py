@@ -484,7 +484,7 @@ def _robot_models() -> tuple[str, ...]:
 
 
 CHOICES = {"filter_mode": lambda: safety_filter.MODES, "map_kind": _map_kinds,  # string parameters with a list
-           "robot_model": _robot_models}
+           "robot_model": _robot_models, "inference_runtime": lambda: ("auto", "onnx", "torch")}  # docs/node.md
 
 
 def parameter_value(rng: np.random.Generator, name: str, spec: Any) -> Any:

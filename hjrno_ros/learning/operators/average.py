@@ -50,10 +50,13 @@ class SymmetryAverage(nn.Module):
         if x.ndim != 4 or x.shape[2] != x.shape[3]:
             raise ValueError(f"symmetry averaging needs a square x-y grid [B, C, N, N], got {tuple(x.shape)}")
         n = len(self.elements)
-        group = min(n, max(1, self.max_stack // x.shape[0]))  # group elements per forward pass
+        # elements per forward pass; all in one while torch.export traces (ONNX export), where a group size
+        # computed from the batch would fix the graph's batch size
+        group = n if torch.compiler.is_compiling() else min(n, max(1, self.max_stack // x.shape[0]))
         total = 0.0
         for first in range(0, n, group):
             ks = self.elements[first:first + group]
-            outs = self.model(torch.cat([self.transform(x, k) for k in ks])).chunk(len(ks))
+            outs = self.model(torch.cat([self.transform(x, k) for k in ks]))
+            outs = outs.unflatten(0, (len(ks), x.shape[0])).unbind(0)  # not chunk(): exports with a free batch
             total = total + sum(self.restore(y, k) for k, y in zip(ks, outs, strict=True))
         return total / n

@@ -36,6 +36,7 @@ class NodeConfig:
     # Lifecycle and model (start-up only).
     autostart: bool = _default("autostart")
     model_path: str = _default("model_path")
+    inference_runtime: str = _default("inference_runtime")
     device: str = _default("device")
     inference_threads: int = _default("inference_threads")
     # The filter.

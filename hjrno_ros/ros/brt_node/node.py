@@ -156,8 +156,9 @@ class BrtNode(LifecycleNode):
         self._create_interfaces(cfg)
         self.configured = True
         self.get_logger().info(
-            f"model {self.model_stem} ({self.card.kind}, window {self.vf.window[0]:g} x {self.vf.window[1]:g} m, "
-            f"{self.vf.shape[0]}x{self.vf.shape[1]} nodes, {self.vf.params}); epsilon {self.settings.epsilon:g} m, "
+            f"model {self.model_stem} ({self.card.kind} on {self.vf.runtime}, window {self.vf.window[0]:g} x "
+            f"{self.vf.window[1]:g} m, {self.vf.shape[0]}x{self.vf.shape[1]} nodes, {self.vf.params}); epsilon "
+            f"{self.settings.epsilon:g} m, "
             f"{self.settings.mode}; {cfg.cmd_vel_in_topic} -> {cfg.cmd_vel_out_topic} "
             f"({'TwistStamped' if self._stamped else 'Twist'})")
 
@@ -430,7 +431,7 @@ class BrtNode(LifecycleNode):
             counts=self.counts.snapshot(), inferences=self.values.inferences, inference_errors=self.values.errors,
             filter_ms=self.command_times.summary(), type_mismatch=list(self.type_mismatch),
             refinement=refinement.status(self.maps.current) if refinement is not None else None,
-            model=str(self.model_stem), symmetry_average=self.card.symmetry_average,
+            model=str(self.model_stem), runtime=self.vf.runtime, symmetry_average=self.card.symmetry_average,
             sources={src.config.name: src.status(now) for src in self.sources},
             reaction_ms=status.summary_ms(self.values.reaction_s))
 

@@ -50,6 +50,7 @@ class Param:
 
 
 MAP_KINDS = ("occupancy", "costmap")
+RUNTIMES = ("auto", "onnx", "torch")  # inference_runtime
 ROBOT_MODEL_NAMES = {"diff_drive": DIFF_DRIVE_MODEL, "car": CAR_MODEL}  # parameter value -> card dynamics.model
 PARAMETERS: dict[str, Param] = {
     "autostart": Param(True, "configure and activate at start (plain mode); false: wait for a lifecycle manager "
@@ -68,9 +69,10 @@ PARAMETERS: dict[str, Param] = {
     "status_topic": Param("brt/status", "JSON status (std_msgs/String, 10 Hz)", read_only=True),
     "model_path": Param("", "model stem or .json/.safetensors path, or the name of a bundled model (v5); '' = the "
                             "bundled models/default", read_only=True),
-    "device": Param("", "torch device for inference: '' = cuda when available else cpu, or cpu, cuda, cuda:N",
-                    read_only=True),
-    "inference_threads": Param(1, "torch CPU threads for inference (keeps cores free for the command path)", 1, 64,
+    "inference_runtime": Param("auto", "auto (onnxruntime when the model card lists an ONNX export, else torch) | "
+                                       "onnx | torch", read_only=True),
+    "device": Param("", "inference device: '' = cuda when available else cpu, or cpu, cuda, cuda:N", read_only=True),
+    "inference_threads": Param(1, "CPU threads for inference (keeps cores free for the command path)", 1, 64,
                                read_only=True),
     "epsilon": Param(-1.0, "m: intervene when V <= epsilon; -1 (startup only) = the model card's value, else 0.1"),
     "filter_mode": Param("least_restrictive", "least_restrictive (the admissible command closest to the nominal: "
@@ -177,6 +179,8 @@ def validate(cfg: dict[str, Any], startup: bool = False) -> str | None:
         return f"epsilon must be finite and >= 0 (-1 = model card, at startup only), got {eps}"
     if cfg["map_kind"] not in MAP_KINDS:
         return f"map_kind must be one of {list(MAP_KINDS)}, got {cfg['map_kind']!r}"
+    if cfg["inference_runtime"] not in RUNTIMES:
+        return f"inference_runtime must be one of {list(RUNTIMES)}, got {cfg['inference_runtime']!r}"
     if cfg["filter_mode"] not in safety_filter.MODES:
         return f"filter_mode must be one of {list(safety_filter.MODES)}, got {cfg['filter_mode']!r}"
     if cfg["robot_model"] not in ROBOT_MODEL_NAMES:

@@ -138,6 +138,7 @@ class StatusInputs:
     type_mismatch: list[str]
     refinement: dict[str, Any] | None
     model: str
+    runtime: str
     symmetry_average: Any
     sources: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)  # per observation source
     reaction_ms: dict[str, float] | None = None  # observation received -> value table, last 200
@@ -174,6 +175,7 @@ def build(s: StatusInputs) -> dict[str, Any]:
         "value_source": latest.source if latest else None,
         "refinement": s.refinement,
         "model": s.model,
+        "runtime": s.runtime,
         "symmetry_average": s.symmetry_average,
         "observation_sources": s.sources,
         "observation_to_table_ms": s.reaction_ms,

@@ -10,6 +10,7 @@ import numpy as np
 
 import hjrno_ros
 from hjrno_ros.core.model_card import ModelCard, paths
+from hjrno_ros.core.operator_values import OperatorValues
 from hjrno_ros.core.scaled_values import ScaledValueFunction, covered_scaling, filter_params
 from hjrno_ros.core.value_source import ValueSource
 from hjrno_ros.ros.brt_node.config import NodeConfig
@@ -55,7 +56,7 @@ class SolverGrid:
     """A solver card's :class:`~hjrno_ros.core.value_source.ValueSource`: the grid, the robot and the window of the
     published value grid, but no operator (``predicts`` False): values come from the solver's refined table only."""
 
-    whole_table, predicts = False, False
+    whole_table, predicts, runtime = False, False, "solver"
 
     def __init__(self, card: ModelCard) -> None:
         self.card, self.grid, self.params, self.window = card, card.grid, card.dynamics, card.window
@@ -72,8 +73,10 @@ class SolverGrid:
 
 
 def load_model(cfg: NodeConfig) -> tuple[ModelCard, ValueSource, Path]:
-    """(card, learned value function, stem) for the node's parameters; the card is checked before torch and the
-    weights are loaded.  A solver card needs ``refine_horizon`` > 0 and loads no weights.  ValueError, one line."""
+    """(card, learned value function, stem) for the node's parameters; the card is checked before the network is
+    loaded.  The network runs on onnxruntime when the card lists an ONNX export (no torch in the process), else on
+    torch (``inference_runtime`` chooses).  A solver card needs ``refine_horizon`` > 0 and loads no weights.
+    ValueError, one line."""
     stem = resolve_model(cfg.model_path)
     card = ModelCard.load(stem)
     if card.kind == "solver":
@@ -90,12 +93,25 @@ def load_model(cfg: NodeConfig) -> tuple[ModelCard, ValueSource, Path]:
     if scaled and cfg.refine_horizon > 0:
         raise ValueError("refine_horizon needs the model card's own car (the refinement solves its dynamics); "
                          f"the robot is {scaling.length:.4g} times its size with limits {robot}")
-    from hjrno_ros.learning.value_function import LearnedValueFunction  # torch: seconds, after the cheap checks
-
-    try:
-        vf = LearnedValueFunction(stem, device=cfg.device or None, threads=int(cfg.inference_threads))
-    except (ValueError, KeyError, TypeError, OSError) as err:
-        raise ValueError(f"cannot load model {stem}: {err}") from None
+    vf = operator_values(stem, card, cfg)
     if scaled:
         vf = ScaledValueFunction(vf, scaling, robot)
     return card, vf, stem
+
+
+def operator_values(stem: Path, card: ModelCard, cfg: NodeConfig) -> OperatorValues:
+    """The card's network on onnxruntime (``inference_runtime`` onnx, or auto with an ONNX export in the card) or on
+    torch (imported only then: seconds and hundreds of MB)."""
+    threads = int(cfg.inference_threads)
+    if cfg.inference_runtime == "onnx" or cfg.inference_runtime == "auto" and card.onnx is not None:
+        from hjrno_ros.inference.onnx_operator import onnx_values
+
+        return onnx_values(stem, card, cfg.device, threads)
+    try:
+        from hjrno_ros.learning.value_function import LearnedValueFunction
+    except ImportError as err:
+        raise ValueError(f"{stem}: its card lists no ONNX export and torch is not installed ({err})") from None
+    try:
+        return LearnedValueFunction(stem, device=cfg.device or None, threads=threads)
+    except (ValueError, KeyError, TypeError, OSError) as err:
+        raise ValueError(f"cannot load model {stem}: {err}") from None

@@ -515,9 +515,9 @@ def test_refinement_takes_over_the_filter_for_its_map_only(model_stem, tmp_path)
 
 
 def test_node_process_runs_without_jax_takes_integer_floats_and_stops_cleanly(model_stem):
-    """The node as its own process: JAX is never loaded (its shared libraries are not mapped, torch's are),
-    ``-p inflation_radius:=0`` (an integer for a float parameter) is accepted, and SIGINT while the worker
-    publishes exits 0 without a traceback or an error line, every time."""
+    """The node as its own process: neither JAX nor torch is loaded (their shared libraries are not mapped,
+    onnxruntime's is: the card lists its export), ``-p inflation_radius:=0`` (an integer for a float parameter)
+    is accepted, and SIGINT while the worker publishes exits 0 without a traceback or an error line, every time."""
     from hjrno_ros.tools.node_process import brt_node_process
 
     domain = DOMAIN + 25
@@ -532,7 +532,8 @@ def test_node_process_runs_without_jax_takes_integer_floats_and_stops_cleanly(mo
                 if run == 0:
                     assert driver.status["value_grid"]["inflation_radius"] == 0.0
                     mapped = Path(f"/proc/{proc.pid}/maps").read_text()
-                    assert "libtorch" in mapped and "jaxlib" not in mapped and "xla_extension" not in mapped
+                    assert "onnxruntime" in mapped and "libtorch" not in mapped and "jaxlib" not in mapped
+                    assert driver.status["runtime"] == "onnxruntime"
                 time.sleep(0.3 + 0.3 * run)  # the worker recomputes every value_timeout / 2 = 0.1 s
                 proc.send_signal(2)
                 proc.wait(timeout=15.0)

@@ -44,6 +44,7 @@ def inputs(**changes) -> status.StatusInputs:
                 odom_received=None, counts={k: 0 for k in ("cmd", "odom", "pose", "commands", "interventions",
                                                            "clipped", "stops")},
                 inferences=0, inference_errors=0, filter_ms=None, type_mismatch=[], refinement=None, model="m",
+                runtime="onnxruntime",
                 symmetry_average=None)
     return status.StatusInputs(**{**base, **changes})
 

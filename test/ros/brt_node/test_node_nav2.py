@@ -66,15 +66,19 @@ def test_lifecycle_through_its_services(model_stem):
 
 
 def test_invalid_lifecycle_requests_are_refused_and_the_node_keeps_filtering(model_stem):
-    """Every transition that does not exist from the present state (activate while active, configure, cleanup, an
-    unknown id; activate or deactivate while unconfigured) is refused with success false: the state stays, the
-    node keeps running and, when active, filtering (rclpy alone raises out of the executor and ends the node)."""
+    """Every transition that does not exist from the present state (activate or deactivate while unconfigured;
+    configure or deactivate while inactive; activate, configure, cleanup or shutdown while active; an unknown id
+    in each) is refused with success false: the state stays, the node keeps running and, when active, filtering
+    (rclpy alone raises out of the executor and ends the node)."""
     with managed(model_stem, DOMAIN + 44) as (driver, node):
         driver.map_pub.publish(map_msg(occupancy()))
         for bad in (Transition.TRANSITION_ACTIVATE, Transition.TRANSITION_DEACTIVATE, 99):
             assert not transition(driver, bad)
             assert lifecycle_state(driver) == State.PRIMARY_STATE_UNCONFIGURED
         assert transition(driver, Transition.TRANSITION_CONFIGURE)
+        for bad in (Transition.TRANSITION_CONFIGURE, Transition.TRANSITION_DEACTIVATE, 99):
+            assert not transition(driver, bad)
+            assert lifecycle_state(driver) == State.PRIMARY_STATE_INACTIVE
         assert transition(driver, Transition.TRANSITION_ACTIVATE)
         settle(driver, *FAR, 0.5, 0.0, timeout=20.0)
         for bad in (Transition.TRANSITION_ACTIVATE, Transition.TRANSITION_CONFIGURE, Transition.TRANSITION_CLEANUP,
