@@ -3,7 +3,7 @@
     hjrno solve --scenario disk|room|indoor|air3d [--robot paper|product|diff_drive] [--grid 40,40,12,20] [--out DIR]
     hjrno generate --experiment NAME [--config FILE] [--out DIR] [--shard K/N] [--workers W]
     hjrno merge | show | train | ensemble | export-onnx | evaluate | calibrate | simulate | demo   (see --help)
-    hjrno bench solver|dataset|node|fuzz|depot|nav|people|signals [--out DIR]
+    hjrno bench solver|dataset|node|fuzz|depot|nav|people|signals|soak [--out DIR]
 
 Results tables (evaluate, simulate, bench) go to ``out/bench`` unless ``--out`` says otherwise.
 """

@@ -212,12 +212,13 @@ def write_table(out: Path, stem: str, title: str, rows: list[dict], note: str) -
 
 def add_arguments(p) -> None:
     """``hjrno bench``'s arguments (an argparse parser)."""
-    p.add_argument("what", choices=["solver", "dataset", "node", "fuzz", "depot", "nav", "people", "signals"])
+    p.add_argument("what", choices=["solver", "dataset", "node", "fuzz", "depot", "nav", "people", "signals", "soak"])
     p.add_argument("--out", default="out/bench", help="results folder (default: out/bench)")
     p.add_argument("--quick", action="store_true", help="smallest case only (smoke run)")
     p.add_argument("--only", default=None, help="dataset bench: families; solver bench: problems (comma-separated)")
     p.add_argument("--model", default=None, help="node, depot and nav benches: model stem (default: models/default)")
-    p.add_argument("--seconds", type=float, default=None, help="fuzz: seconds (180); depot, nav, people: per episode")
+    p.add_argument("--seconds", type=float, default=None, help="fuzz: seconds (180); soak: (1800); depot, nav, people: "
+                   "per episode")
     p.add_argument("--episodes", type=int, default=None, help="depot: episodes (200); nav: per case (3); people: (2); "
                    "signals: trials (32)")
     p.add_argument("--scan-rate", type=float, default=0.0, help="node bench: also LaserScans at this rate, Hz")
@@ -249,6 +250,10 @@ def dispatch(what: str, out: Path, quick: bool = False, only: str | None = None,
 
         return people_bench.run(out, episodes=episodes or 2, seconds=seconds or 40.0, model=model,
                                 obstacle_speed_max=1.0 if obstacle_speed is None else obstacle_speed)
+    if what == "soak":
+        from hjrno_ros.tools import soak_bench
+
+        return soak_bench.run(out, seconds=seconds or 1800.0, model=model)
     if what == "signals":
         from hjrno_ros.tools import signal_bench
 

@@ -15,15 +15,16 @@ from sensor_msgs.msg import LaserScan
 from std_srvs.srv import SetBool
 
 from hjrno_ros.ros.harness.plants import HeldPlant
-from hjrno_ros.ros.harness.sim_base import SimBase
+from hjrno_ros.ros.harness.sim_base import Rates, SimBase
 from hjrno_ros.ros.harness.spin import spin_in_background
 
 
-def bench_base(context: Any, pose: tuple[float, float, float], speed: float, scan_rate: float = 0.0) -> SimBase:
-    """A robot held at ``pose`` reporting ``speed``, commanding (speed, 0.1) while running; ``scan_rate`` > 0:
-    :func:`walking_person_scan` at that rate."""
+def bench_base(context: Any, pose: tuple[float, float, float], speed: float, scan_rate: float = 0.0,
+               rates: Rates | None = None) -> SimBase:
+    """A robot held at ``pose`` reporting ``speed``, commanding (speed, 0.1) while running (odometry at 50 Hz and
+    commands at 20 Hz unless ``rates`` say otherwise); ``scan_rate`` > 0: :func:`walking_person_scan` at that rate."""
     base = SimBase(context, HeldPlant(*pose, speed), lambda state, t: np.array([speed, 0.1]),
-                   name="brt_bench_driver", keep_grids=False)
+                   name="brt_bench_driver", rates=rates, keep_grids=False)
     if scan_rate > 0:
         publisher = base.create_publisher(LaserScan, "scan", qos_profile_sensor_data)
         count = iter(range(1 << 62))
