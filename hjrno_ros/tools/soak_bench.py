@@ -52,6 +52,7 @@ def run(out: Path, seconds: float = 1800.0, model: str | None = None, progress=p
 
     stem = resolve_model(model or "")
     limits = ModelCard.load(stem).dynamics
+    turn_limit = getattr(limits, "omega_max", None) or limits.kappa_max * max(abs(limits.v_min), limits.v_max)
     outputs = collections.Counter()
     domain = free_domain()
 
@@ -68,7 +69,6 @@ def run(out: Path, seconds: float = 1800.0, model: str | None = None, progress=p
         elif abs(linear) > max(abs(limits.v_min), limits.v_max) + 1e-9 or abs(angular) > turn_limit + 1e-9:
             outputs["beyond_limits"] += 1
 
-    turn_limit = getattr(limits, "omega_max", None) or limits.kappa_max * max(abs(limits.v_min), limits.v_max)
     params = {"enable_stamped_cmd_vel": True, "observation_sources": "[scan]"}
     maps, rss, stops = bench_maps(), [], collections.Counter()
     with brt_node_process(domain, params, stem) as (proc, tail):

@@ -78,8 +78,8 @@ class BaseLog:
 @dataclasses.dataclass
 class Rates:
     """Timing of a base: physics and odometry every ``physics_s`` (0: no timer, the user publishes), nominal commands
-    every ``command_s`` (the same period: one timer, command first), the watchdog, the control period a kinematic
-    plant's speed command takes to reach."""
+    every ``command_s`` (the same period: one timer, command first), and the watchdog: a filtered command older
+    than ``cmd_timeout`` counts as zero."""
 
     physics_s: float = 0.02
     command_s: float = 0.05
