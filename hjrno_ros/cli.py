@@ -4,6 +4,7 @@
     hjrno generate --experiment NAME [--config FILE] [--out DIR] [--shard K/N] [--workers W]
     hjrno merge | show | train | ensemble | export-onnx | evaluate | calibrate | simulate | demo   (see --help)
     hjrno bench solver|dataset|node|fuzz|depot|nav|people|signals|soak [--out DIR]
+    hjrno agents --robot jackal|turtlebot3 [--out STEM]   (value tables against a moving person)
 
 Results tables (evaluate, simulate, bench) go to ``out/bench`` unless ``--out`` says otherwise.
 """
@@ -290,6 +291,14 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return benchmarks.dispatch_args(args)
 
 
+def cmd_agents(args: argparse.Namespace) -> int:
+    from hjrno_ros.studies.navigation import ROBOTS
+    from hjrno_ros.truth import agent_tables
+
+    robot = ROBOTS[args.robot]
+    return agent_tables.main(args, robot.params(), robot.radius)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="hjrno", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"hjrno_ros {__version__}")
@@ -476,6 +485,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     benchmarks.add_arguments(p)
     p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("agents", help="ground-truth value tables against a tracked moving agent (a person)")
+    from hjrno_ros.truth import agent_tables  # numpy only at import
+
+    agent_tables.add_arguments(p)
+    p.set_defaults(func=cmd_agents)
     return parser
 
 

@@ -39,8 +39,15 @@ from hjrno_ros.core.safety_filter import (
     twist_to_control,
 )
 
-Certificate = Callable[[np.ndarray], np.ndarray]  # states (..., 4) -> W (...), m
+Certificate = Callable[[np.ndarray], np.ndarray]  # states (..., 4) -> W (...), m; may have .at(seconds)
 LINEAR_LEVELS, TURN_LEVELS, SEGMENT_POINTS = 7, 9, 16
+
+
+def at_time(cert: Certificate, seconds: float) -> Certificate:
+    """``cert`` for states ``seconds`` after now: a time-varying certificate's ``at`` (tracked agents move), else
+    ``cert`` itself."""
+    shift = getattr(cert, "at", None)
+    return shift(seconds) if shift is not None else cert
 
 
 def certificate(params: RobotParams, clearance: Clearance, table=None, epsilon: float = 0.0) -> Certificate:
@@ -137,6 +144,15 @@ def ahead(params: RobotParams, settings: FilterSettings, states: np.ndarray, pre
     return later, disturbance_bound(params, 0.5 * (states[:, 2] + later[:, 2])) * delay
 
 
+def _three(cert: Certificate, here: np.ndarray, states: np.ndarray, nxt: np.ndarray, delay: float,
+           dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """W at the states now, after ``delay`` and one period later; one lookup for a static certificate, three
+    (each at its time) for one that moves (tracked agents)."""
+    if not hasattr(cert, "at"):
+        return tuple(np.split(cert(np.concatenate([here, states, nxt])), 3))
+    return cert(here), at_time(cert, delay)(states), at_time(cert, delay + dt)(nxt)
+
+
 def filter_least_restrictive(params: RobotParams, settings: FilterSettings, cert: Certificate, states: np.ndarray,
                              nominal: np.ndarray, previous: np.ndarray | None = None,
                              delay: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -149,15 +165,15 @@ def filter_least_restrictive(params: RobotParams, settings: FilterSettings, cert
     states, lag = ahead(params, settings, here, previous, delay)
     nominal = clip_to_limits(params, states, nominal, settings.dt)
     nxt, drift = _after(params, settings, states, nominal[:, None])
-    w_here, w_now, w_next = np.split(cert(np.concatenate([here, states, nxt[:, 0]])), 3)  # one lookup, not three
+    w_here, w_now, w_next = _three(cert, here, states, nxt[:, 0], delay, settings.dt)
     need = required(settings, w_now - lag)
     blind = ~np.isfinite(w_now)  # no table and no bound where the command acts (a car, d₀ > 0): fail closed
     changed = blind | ~(w_next - drift[:, 0] - lag >= need)
     out = nominal.copy()
     search = changed & ~blind  # only the commands the nominal fails are searched (most pass: a cheap common case)
     if search.any():
-        out[search] = _closest_admissible(params, settings, cert, states[search], nominal[search], lag[search],
-                                          need[search])
+        out[search] = _closest_admissible(params, settings, at_time(cert, delay + settings.dt), states[search],
+                                          nominal[search], lag[search], need[search])
     out[blind] = 0.0
     return out, changed, np.where(blind, -np.inf, w_here)
 

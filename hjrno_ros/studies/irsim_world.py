@@ -239,6 +239,17 @@ class IrSimWorld:
         """(k, 2) positions of the pedestrians, m."""
         return np.array([[float(v) for v in obj.state[:2, 0]] for obj in self._people_objects()]).reshape(-1, 2)
 
+    @property
+    def people_velocities(self) -> np.ndarray:
+        """(k, 2) velocities of the pedestrians in the world frame, m/s: what IR-SIM applied in the last step (its
+        ``velocity_xy``: an omni agent's body-frame velocity turned by its heading)."""
+        return np.array([[float(v) for v in obj.velocity_xy[:2, 0]] for obj in self._people_objects()]).reshape(-1, 2)
+
+    @property
+    def people_radii(self) -> np.ndarray:
+        """(k,) radii of the pedestrians' disks, m."""
+        return np.array([float(person.radius) for person in self.people])
+
     def _people_objects(self) -> list[Any]:
         return [obj for obj in self._env.obstacle_list if obj.shape != "map"]
 

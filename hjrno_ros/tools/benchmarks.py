@@ -223,21 +223,23 @@ def add_arguments(p) -> None:
                    "signals: trials (32)")
     p.add_argument("--scan-rate", type=float, default=0.0, help="node bench: also LaserScans at this rate, Hz")
     p.add_argument("--obstacle-speed", type=float, default=None, help="people bench: obstacle_speed_max (1.0 m/s)")
+    p.add_argument("--agent-table", default=None, help="people bench: the tracked agents' tables (models/agents_ROBOT)")
     for name in ("robots", "maps", "drivers", "filters"):  # nav_bench.ROBOTS, MAPS, DRIVERS, FILTERS
-        p.add_argument(f"--{name}", default=None, help=f"nav bench: comma-separated {name} (default: all)")
+        p.add_argument(f"--{name}", default=None, help=f"nav bench: comma-separated {name} (default: all); people "
+                       "bench: its filters, and one robot")
 
 
 def dispatch_args(args) -> int:
     """Run the bench that :func:`add_arguments`' parsed ``args`` name."""
     return dispatch(args.what, Path(args.out), quick=args.quick, only=args.only, model=args.model,
                     episodes=args.episodes, seconds=args.seconds, scan_rate=args.scan_rate,
-                    obstacle_speed=args.obstacle_speed,
+                    obstacle_speed=args.obstacle_speed, agent_table=args.agent_table,
                     select={k: getattr(args, k) for k in ("robots", "maps", "drivers", "filters")})
 
 
 def dispatch(what: str, out: Path, quick: bool = False, only: str | None = None, model: str | None = None,
              episodes: int | None = None, seconds: float | None = None, select: dict | None = None,
-             scan_rate: float = 0.0, obstacle_speed: float | None = None) -> int:
+             scan_rate: float = 0.0, obstacle_speed: float | None = None, agent_table: str | None = None) -> int:
     """``hjrno bench WHAT``: the depot check, the navigation benchmark and the fuzz soak (each its own module), or
     :func:`run`'s benches.  ``select``: the navigation benchmark's robots, maps, drivers and filters."""
     if what == "nav":
@@ -248,8 +250,12 @@ def dispatch(what: str, out: Path, quick: bool = False, only: str | None = None,
     if what == "people":
         from hjrno_ros.tools import people_bench
 
-        return people_bench.run(out, episodes=episodes or 2, seconds=seconds or 40.0, model=model,
-                                obstacle_speed_max=1.0 if obstacle_speed is None else obstacle_speed)
+        chosen = (select or {}).get("filters")
+        return people_bench.run(out, episodes=episodes or 2, seconds=seconds, model=model,
+                                obstacle_speed_max=1.0 if obstacle_speed is None else obstacle_speed,
+                                robot_name=((select or {}).get("robots") or "jackal").split(",")[0],
+                                filters=tuple(chosen.split(",")) if chosen else people_bench.FILTERS,
+                                agent_table=agent_table)
     if what == "soak":
         from hjrno_ros.tools import soak_bench
 

@@ -1,11 +1,14 @@
-"""``hjrno bench people``: brt_node with a laser among pedestrians in IR-SIM, over DDS in real time.
+"""``hjrno bench people``: brt_node with a laser, and with tracked agents, among pedestrians in IR-SIM, over DDS.
 
 Four pedestrians walk at 0.5–1.0 m/s with IR-SIM's social-force behaviour (they avoid each other, walls and the
 robot, as people do, but not always in time): two along the robot's route against it (between its goals), two
 between random points of the map. The static map lacks them; the robot's drivers (the Nav2-like follower and the
 careless driver of the navigation benchmark) are blind to them. ``brt_node`` gets the static map and IR-SIM's LiDAR
-as a ``scan`` observation source at 10 Hz (``obstacle_speed_max`` its default, 1 m/s). Each case also runs without
-people, so that goals and time to goal compare with the same episodes on an empty floor.
+as a ``scan`` observation source at 10 Hz (``obstacle_speed_max`` its default, 1 m/s); ``brt_node+agents`` also gets
+the pedestrians as tracked agents (a perfect tracker: IR-SIM's positions and velocities, PointCloud2 at 10 Hz) with
+the robot's relative value tables (docs/design.md, "Tracked agents"). The baseline ``stop_zone`` is
+collision_monitor's stop polygon and approach model, seeing the people exactly. Each case also runs without people,
+so that goals and time to goal compare with the same episodes on an empty floor.
 
 Reported per (driver, filter, people): collisions split by the robot's speed at contact (IR-SIM's own check; moving:
 |v| > 0.02 m/s, else a person walked into a stopped robot), the least gap between the robot's and a person's disks,
@@ -14,6 +17,7 @@ goals, time to goal against the same runs without people, and the stopped and fa
 
 from __future__ import annotations
 
+import contextlib
 import json
 import platform
 import time
@@ -22,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from hjrno_ros.core.atomic import atomic_write
+from hjrno_ros.core.stop_zone import StopZoneSettings, stop_zone_filter
 from hjrno_ros.core.tables import records_table
 from hjrno_ros.studies import navigation as nav
 from hjrno_ros.tools.nav_bench import DRIVERS, INTERRUPT, STEP, node_params
@@ -29,6 +34,7 @@ from hjrno_ros.tools.nav_bench import DRIVERS, INTERRUPT, STEP, node_params
 MOVING = 0.02  # m/s: the robot moved into the contact above this speed
 SCAN_EVERY = 2  # steps of STEP s between LaserScans: 10 Hz
 SEED_OFFSET = 7  # the random pedestrians' seed, after the episodes'
+AGENTS_TOPIC = "tracked_agents"  # brt_node+agents: IR-SIM's pedestrians as a perfect tracker's PointCloud2
 
 
 def people_for(nav_map: nav.NavMap, robot: nav.Robot, episode: nav.Episode, seed: int) -> tuple:
@@ -43,15 +49,27 @@ def people_for(nav_map: nav.NavMap, robot: nav.Robot, episode: nav.Episode, seed
     return tuple(far)
 
 
-def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str = "plan1000001",
-        seconds: float = 40.0, model: str | None = None, obstacle_speed_max: float = 1.0, progress=print) -> int:
-    """The benchmark; returns 1 when brt_node drove into something.  Rows merge into ``out``/people.json by
-    (driver, filter, obstacle_speed_max)."""
-    from hjrno_ros.studies.irsim_world import DiffDriveBase, IrSimWorld
-    from hjrno_ros.tools.nav_bench import ROOT
-    from hjrno_ros.tools.node_process import brt_node_process, free_domain
+FILTERS = ("none", "stop_zone", "brt_node", "brt_node+agents")
 
+
+def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str = "plan1000001",
+        seconds: float | None = None, model: str | None = None, obstacle_speed_max: float = 1.0,
+        filters: tuple[str, ...] = FILTERS, agent_table: str | None = None, progress=print) -> int:
+    """The benchmark; returns 1 when brt_node drove into something.  Rows merge into ``out``/people.json by
+    (driver, filter, obstacle_speed_max, agent_deviation), into people.json for the Jackal and people_<robot>.json
+    for another robot.  ``seconds`` per episode: the navigation benchmark's for the robot.  ``agent_table``: the
+    tracked agents' tables (default: the bundled ``agents_<robot>``)."""
+    from hjrno_ros.core.tracked_agents import read_agent_table
+    from hjrno_ros.studies.irsim_world import DiffDriveBase, IrSimWorld
+    from hjrno_ros.tools.nav_bench import DURATION, ROOT
+
+    unknown = set(filters) - set(FILTERS)
+    if unknown:
+        raise ValueError(f"people bench filters are {FILTERS}, got {sorted(unknown)}")
     model = model or str(ROOT / "models" / "default")
+    seconds = seconds or DURATION[robot_name]
+    agent_table = agent_table or str(ROOT / "models" / f"agents_{robot_name}")
+    deviation = read_agent_table(agent_table).deviation if "brt_node+agents" in filters else None
     robot = nav.ROBOTS[robot_name]
     nav_map = nav.floor_plan_map(int(map_name[4:]))
     sd = nav_map.sd
@@ -64,40 +82,81 @@ def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str 
                           people=crowd)
 
     runs: dict[tuple[str, str, bool], list[tuple]] = {}
-    domain, started = free_domain(), time.perf_counter()
-    params = {**node_params(robot), "observation_sources": "[scan]", "obstacle_speed_max": obstacle_speed_max}
-    with brt_node_process(domain, params, model) as (proc, tail):
-        for driver_kind in DRIVERS:
-            for people in (False, True):
-                for name in ("none", "brt_node"):
+    started = time.perf_counter()
+    for name in filters:
+        with _filter_runner(name, nav_map, robot, sd, model, obstacle_speed_max, seconds, agent_table) as drive_one:
+            for driver_kind in DRIVERS:
+                for people in (False, True):
                     t0, results = time.perf_counter(), []
                     for k, e in enumerate(eps):
-                        w = world(e, k, people, lidar=name == "brt_node")
+                        w = world(e, k, people, lidar=name.startswith("brt_node"))
                         driver = nav.GoalDriver(driver_kind, nav_map, robot, e, INTERRUPT, sd)
                         try:
-                            if name == "none":
-                                r = nav.run_episode(w, driver, nav.no_filter, robot, seconds, STEP)
-                            else:
-                                r = _drive(w, nav_map, driver, e, domain, seconds, tail)
-                            results.append((r, w.contact_speed, w.min_people_clearance))
+                            results.append((drive_one(w, driver, e), w.contact_speed, w.min_people_clearance))
                         finally:
                             w.close()
-                        if proc.poll() is not None:
-                            raise RuntimeError(f"brt_node exited: {tail()}")
                     runs[(driver_kind, name, people)] = results
                     progress(f"{driver_kind} {name} people={people}: "
                              f"{sum(r.collided for r, _, _ in results)} collisions "
                              f"({time.perf_counter() - t0:.0f} s)")
     rows = [{**summarize(driver_kind, name, runs[(driver_kind, name, True)], runs[(driver_kind, name, False)]),
-             "obstacle_speed_max": obstacle_speed_max if name == "brt_node" else None}
-            for driver_kind in DRIVERS for name in ("none", "brt_node")]
+             "obstacle_speed_max": obstacle_speed_max if name == "brt_node" else None,
+             "agent_deviation": deviation if name == "brt_node+agents" else None}
+            for driver_kind in DRIVERS for name in filters]
     write(Path(out), rows, {"episodes_per_case": episodes, "robot": robot_name, "map": map_name, "seconds": seconds,
                             "model": str(model), "wall_s": round(time.perf_counter() - started)})
-    progress(f"wrote {Path(out) / 'people.md'}")
-    return int(any(r["collisions_moving"] for r in rows if r["filter"] != "none"))
+    progress(f"wrote {Path(out) / ('people' if robot_name == 'jackal' else 'people_' + robot_name)}.md")
+    return int(any(r["collisions_moving"] for r in rows if r["filter"].startswith("brt_node")))
 
 
-def _drive(w, nav_map, driver, episode, domain, seconds, tail) -> nav.EpisodeResult:
+@contextlib.contextmanager
+def _filter_runner(name: str, nav_map: nav.NavMap, robot: nav.Robot, sd: np.ndarray, model: str,
+                   obstacle_speed_max: float, seconds: float, agent_table: str):
+    """Yields ``drive(world, driver, episode) -> EpisodeResult`` for filter ``name``: lockstep for none and the stop
+    zone, brt_node over DDS (one node process for all its episodes) for the others."""
+    if not name.startswith("brt_node"):
+        def lockstep(w, driver, e):
+            filt = nav.no_filter if name == "none" else people_stop_zone(w, nav_map, robot, sd)
+            return nav.run_episode(w, driver, filt, robot, seconds, STEP)
+
+        yield lockstep
+        return
+    from hjrno_ros.tools.node_process import brt_node_process, free_domain
+
+    tracked = name == "brt_node+agents"
+    params = {**node_params(robot), "observation_sources": "[scan, people]" if tracked else "[scan]",
+              "obstacle_speed_max": obstacle_speed_max}
+    if tracked:
+        params |= {"people.type": "agents", "people.topic": AGENTS_TOPIC, "agent_table": agent_table}
+    domain = free_domain()
+    with brt_node_process(domain, params, model) as (proc, tail):
+        def over_dds(w, driver, e):
+            if proc.poll() is not None:
+                raise RuntimeError(f"brt_node exited: {tail()}")
+            return _drive(w, nav_map, driver, e, domain, seconds, tail, SCAN_EVERY if tracked else 0)
+
+        yield over_dds
+
+
+def people_stop_zone(w, nav_map: nav.NavMap, robot: nav.Robot, sd: np.ndarray) -> nav.Filter:
+    """collision_monitor's stop polygon and approach model (``nav.stop_zone``) with the people's true positions as
+    obstacles beside the map: the baseline that sees everything and knows no dynamics."""
+    clearance = nav_map.clearance(sd)
+
+    def body(points: np.ndarray) -> np.ndarray:
+        people, radii = w.people_positions, w.people_radii
+        gaps = np.linalg.norm(points[..., None, :] - people, axis=-1) - radii if len(people) else None
+        nearest = gaps.min(-1) if gaps is not None else np.inf
+        return np.minimum(clearance(points), nearest) - robot.radius
+
+    def filt(state: np.ndarray, t: float, nominal: np.ndarray) -> tuple[np.ndarray, bool]:
+        out, changed = stop_zone_filter(StopZoneSettings(), body, state[None], nominal[None])
+        return out[0], bool(changed[0])
+
+    return filt
+
+
+def _drive(w, nav_map, driver, episode, domain, seconds, tail, agents_every: int = 0) -> nav.EpisodeResult:
     from hjrno_ros.ros.harness.irsim_base import drive, episode_result, irsim_base  # rclpy only when it runs
 
     x0, y0 = episode.start[:2]
@@ -109,7 +168,8 @@ def _drive(w, nav_map, driver, episode, domain, seconds, tail) -> nav.EpisodeRes
 
     try:
         base = drive(domain, lambda context: irsim_base(w, nav_map, driver, STEP, context=context,
-                                                       scan_every=SCAN_EVERY), seconds, ready)
+                                                       scan_every=SCAN_EVERY, agents_every=agents_every,
+                                                       agents_topic=AGENTS_TOPIC), seconds, ready)
     except RuntimeError as err:
         raise RuntimeError(f"{err} (node: {tail()})") from None
     return episode_result(base)
@@ -140,22 +200,31 @@ def summarize(driver: str, name: str, with_people: list[tuple], without: list[tu
 
 
 def write(out: Path, rows: list[dict], run: dict) -> None:
-    """Merge ``rows`` into people.json (a rerun replaces its own rows) and render people.md."""
+    """Merge ``rows`` into people.json (people_<robot>.json but for the Jackal; a rerun replaces its own rows) and
+    render the .md beside it."""
     out.mkdir(parents=True, exist_ok=True)
-    key = lambda r: (r["driver"], r["filter"], r["obstacle_speed_max"])  # noqa: E731
-    path = out / "people.json"
+    stem = "people" if run["robot"] == "jackal" else f"people_{run['robot']}"
+    key = lambda r: (r["driver"], r["filter"], r["obstacle_speed_max"], r.get("agent_deviation"))  # noqa: E731
+    path = out / f"{stem}.json"
     old = json.loads(path.read_text())["rows"] if path.is_file() else []
     rows = [r for r in old if key(r) not in {key(n) for n in rows}] + rows
-    rows.sort(key=lambda r: (DRIVERS.index(r["driver"]), r["filter"] != "none", r["obstacle_speed_max"] or 0.0))
+    order = lambda r: FILTERS.index(r["filter"]) if r["filter"] in FILTERS else len(FILTERS)  # noqa: E731
+    rows.sort(key=lambda r: (DRIVERS.index(r["driver"]), order(r), r["obstacle_speed_max"] or 0.0,
+                             r.get("agent_deviation") or 0.0))
     report = {"machine": f"{platform.machine()}, Python {platform.python_version()}", "date": time.strftime("%Y-%m-%d"),
               "step_s": STEP, **run, "rows": rows}
     note = (f"`hjrno bench people` on {report['machine']}, {report['date']}: {run['robot']} on {run['map']}, "
             f"{run['episodes_per_case']} episodes per case of {run['seconds']:g} s, 4 social-force pedestrians at "
             "0.5-1.0 m/s (2 on the robot's route against it), IR-SIM's LiDAR at 10 Hz as brt_node's scan source "
-            "(obstacle_speed_max per row); none runs lockstep, brt_node over DDS in real time. collisions_moving: "
+            "(obstacle_speed_max per row: the motion margin of returns off the map); brt_node+agents also gets the "
+            "pedestrians' true positions and velocities at 10 Hz as a tracked-agents source (relative value tables "
+            "solved for agents deviating from their velocity by agent_deviation m/s; their returns keep no margin); "
+            "stop_zone is collision_monitor's stop polygon and approach model with the "
+            "people's true positions. none and stop_zone run lockstep, brt_node over DDS in real time. "
+            "collisions_moving: "
             f"the robot moved (|v| > {MOVING} m/s) into the contact; collisions_stopped: a person walked into the "
             "robot at rest. min_gap: between the robot's and a person's disks. time to goal: against the same "
             "episodes without people, over the goals both reached.")
-    atomic_write(out / "people.json", lambda p: Path(p).write_text(json.dumps(report, indent=1) + "\n"))
-    atomic_write(out / "people.md", lambda p: Path(p).write_text(
+    atomic_write(path, lambda p: Path(p).write_text(json.dumps(report, indent=1) + "\n"))
+    atomic_write(out / f"{stem}.md", lambda p: Path(p).write_text(
         "\n".join(["# People benchmark", "", note, "", *records_table(rows, blank_none=True)]) + "\n"))

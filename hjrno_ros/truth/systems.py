@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import hj_reachability as hj
 import jax.numpy as jnp
@@ -108,6 +109,56 @@ class DiffDrive(DynamicDubinsCar):
 
     def __init__(self, params: DiffDriveParams = DiffDriveParams()):
         super().__init__(params)
+
+
+@dataclasses.dataclass(frozen=True)
+class AgentRelativeParams(DiffDriveParams):
+    """A differential drive seen from an agent that moves at ``agent_speed`` along +x of its own frame: the
+    DiffDriveParams fields (d₀ carries the agent's deviation from that velocity) plus s and the rest lock.
+    Positional construction ``AgentRelativeParams(*values)`` in field order is what the solver's traced rebuild
+    uses, so every field is a float."""
+
+    agent_speed: float = 0.0  # s, m/s: the agent's speed (the constant drift −s on ẋ)
+    rest_speed: float = 0.0  # m/s: below this |v| the robot holds its speed (v̇ = 0); 0: never
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        s, r = self.agent_speed, self.rest_speed
+        if _concrete((s, r)) and not (math.isfinite(s) and s >= 0 and math.isfinite(r) and r >= 0):
+            raise ValueError(f"agent_speed and rest_speed must be finite and >= 0, got {s}, {r}")
+
+
+class AgentRelative(DiffDrive):
+    """The differential drive in the frame of an agent moving at s along +x: ẋ = v cos θ − s + d₁,
+    ẏ = v sin θ + d₂ (‖d‖ ≤ δ·|v| + d₀), v̇ = u₁, θ̇ = u₂.  The drift enters both f and the open-loop part
+    (hj's Lax-Friedrichs dissipation reads the latter); hash and equality include s through the params.
+
+    Rest lock: below ``rest_speed`` the robot has no acceleration (v̇ = 0, so no v-dissipation either).  A target
+    whose rest term is a one-node ridge in v (safe at rest, unsafe moving) is lowered by T·Δv by hj's
+    Lax-Friedrichs dissipation at that node, which makes every rest state near the agent unsafe; the lock keeps
+    the rest node at the exact value of staying at rest.  It only takes a control away from the maximising
+    robot, so the table stays conservative (it forgoes starting from exactly v = 0 to flee)."""
+
+    def __init__(self, params: AgentRelativeParams = AgentRelativeParams()):
+        super().__init__(params)
+
+    def _drift(self):
+        return jnp.array([1.0, 0.0, 0.0, 0.0]) * self.params.agent_speed
+
+    def _moving(self, v):
+        """1 where the robot may accelerate, 0 at rest (|v| < rest_speed)."""
+        return jnp.where(jnp.abs(v) < self.params.rest_speed, 0.0, 1.0)
+
+    def __call__(self, state, control, disturbance, time):
+        gain = self._moving(state[..., 2])
+        control = control * jnp.stack([gain, jnp.ones_like(gain)], axis=-1)
+        return super().__call__(state, control, disturbance, time) - self._drift()
+
+    def open_loop_dynamics(self, state, time):
+        return super().open_loop_dynamics(state, time) - self._drift()
+
+    def control_jacobian(self, state, time):
+        return super().control_jacobian(state, time).at[2, 0].multiply(self._moving(state[2]))
 
 
 def robot_system(params: RobotParams) -> DynamicDubinsCar:

@@ -62,3 +62,16 @@ def test_nav_bench_rows_lockstep_and_over_dds(tmp_path):
         assert rows[name]["collisions"] == 0 and rows[name]["episodes"] == 1
     assert rows["brt_node"]["loop"] == "DDS, real time" and rows["brt_node"]["fail_closed_share"] == 0
     assert "| brt_node |" in (tmp_path / "nav.md").read_text()
+
+
+def test_prediction_deviation_is_zero_for_steady_walkers_and_the_jump_for_a_turn():
+    from hjrno_ros.tools.pedestrian_motion import prediction_deviation
+
+    t = np.arange(21) * 0.05
+    steady = np.stack([t, 0 * t], -1)[:, None]  # (T, 1, 2): 1 m/s along x
+    u = np.broadcast_to([1.0, 0.0], steady.shape)
+    assert prediction_deviation(steady, u, 0.05, 0.5).max() == pytest.approx(0.0, abs=1e-12)
+    back = np.where(t[:, None, None] <= 0.5, steady, 2 * steady[10] - steady)  # turns back at 0.5 s
+    u_back = np.where(t[:, None, None] < 0.5, u, -u)
+    d = prediction_deviation(back, u_back, 0.05, 0.5)
+    assert 1.5 < d.max() <= 2.0  # a turn back: up to the whole 2 m/s change

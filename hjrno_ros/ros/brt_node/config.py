@@ -66,6 +66,7 @@ class NodeConfig:
     inflation_radius: float = _default("inflation_radius")
     observation_sources: list = dataclasses.field(default_factory=list)
     obstacle_speed_max: float = _default("obstacle_speed_max")
+    agent_table: str = _default("agent_table")
     # The value worker and input validity.
     inference_rate: float = _default("inference_rate")
     recenter_distance: float = _default("recenter_distance")

@@ -13,7 +13,7 @@ from nav_msgs.msg import OccupancyGrid, Odometry
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.qos import qos_profile_sensor_data
-from sensor_msgs.msg import LaserScan
+from sensor_msgs.msg import LaserScan, PointCloud2
 from std_msgs.msg import Float32MultiArray, String
 from std_srvs.srv import SetBool
 
@@ -21,10 +21,18 @@ from hjrno_ros.ros.brt_node import status
 from hjrno_ros.ros.brt_node.config import NodeConfig
 from hjrno_ros.ros.brt_node.messages import LATCHED
 
+SOURCE_SUBSCRIPTIONS = {  # an observation source's type: its message and QoS
+    "scan": (LaserScan, qos_profile_sensor_data),
+    "costmap": (OccupancyGrid, LATCHED),
+    # best effort (depth 5) matches a tracker's reliable publisher and a radar driver's best-effort one alike
+    "agents": (PointCloud2, qos_profile_sensor_data),
+}
+
 
 class Interfaces:
     """``callbacks``: map, odom, pose, cmd, control, status, diagnostics, enable; ``sources``: one callback per
-    observation source's name (LaserScan with sensor-data QoS, a costmap reliable + transient local)."""
+    observation source's name (:data:`SOURCE_SUBSCRIPTIONS`: a LaserScan or tracked agents' PointCloud2 with
+    sensor-data QoS, a costmap reliable + transient local)."""
 
     def __init__(self, node: Any, cfg: NodeConfig, callbacks: dict[str, Callable[..., Any]],
                  sources: dict[str, Callable[..., Any]] | None = None) -> None:
@@ -46,7 +54,7 @@ class Interfaces:
         for kind, topic, name, qos, group in subscriptions:
             self._keep(node.destroy_subscription, sub(kind, topic, callbacks[name], qos, callback_group=group))
         for source in cfg.sources:  # their own group: a scan's parsing never waits behind a map's
-            kind, qos = (LaserScan, qos_profile_sensor_data) if source.type == "scan" else (OccupancyGrid, LATCHED)
+            kind, qos = SOURCE_SUBSCRIPTIONS[source.type]
             self._keep(node.destroy_subscription, sub(kind, source.topic, (sources or {})[source.name], qos,
                                                       callback_group=source_group))
         self.control_timer = self._keep(node.destroy_timer, timer(cfg.control_period, callbacks["control"],

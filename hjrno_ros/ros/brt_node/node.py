@@ -34,13 +34,14 @@ from std_msgs.msg import String
 from std_srvs.srv import SetBool
 
 from hjrno_ros.core import least_restrictive, safety_filter
+from hjrno_ros.core.tracked_agents import with_agents
 from hjrno_ros.ros.brt_node import messages, parameters, status
 from hjrno_ros.ros.brt_node.config import NodeConfig
 from hjrno_ros.ros.brt_node.inputs import MapData, MapInput, RobotState, StateInput
 from hjrno_ros.ros.brt_node.interfaces import Interfaces, refuse_invalid_transitions
-from hjrno_ros.ros.brt_node.observation_sources import SOURCE_PARAMETERS, ObservationSource
+from hjrno_ros.ros.brt_node.observation_sources import SOURCE_PARAMETERS, ObservationSource, fresh_agents
 from hjrno_ros.ros.brt_node.refinement import Refinement
-from hjrno_ros.ros.brt_node.value_sources import load_model
+from hjrno_ros.ros.brt_node.value_sources import load_agent_table, load_model
 from hjrno_ros.ros.brt_node.value_worker import ValueWorker, table_state
 
 NODE_NAME = "brt_node"
@@ -134,7 +135,7 @@ class BrtNode(LifecycleNode):
         self.stop()
         self._destroy_interfaces()
         self.configured = False
-        for name in ("values", "maps", "sources", "states", "vf", "card"):
+        for name in ("values", "maps", "sources", "states", "vf", "card", "agent_table"):
             self.__dict__.pop(name, None)
 
     # ------------------------------------------------------------------ set-up
@@ -147,6 +148,7 @@ class BrtNode(LifecycleNode):
         self.config = cfg
         try:
             self.card, self.vf, self.model_stem = load_model(cfg)
+            self.agent_table = load_agent_table(cfg, self.vf.params)
         except ValueError as err:
             raise StartupError(str(err)) from None
         self._apply_settings(cfg)
@@ -301,6 +303,9 @@ class BrtNode(LifecycleNode):
             *((f"source {s.config.name}", lambda s=s: s.get(now)) for s in self.sources if s.config.required),
             ("value", lambda: self.values.get(now, cfg.value_timeout)),
         ]
+        if self.agent_table is not None:  # tracked agents: the fresh ones (a stale required source fails closed)
+            sources.append(("agents", lambda: fresh_agents(self.sources, now, data["map"].frame_id)))
+            sources.append(("tracked", lambda: (None, self._lost_agents(data["value"], now))))
         if self.settings.mode != "least_restrictive":  # these modes read V at the state itself
             sources.append(("value", lambda: self.values.covers(data["value"], data["state"])))
         for name, source in sources:
@@ -309,6 +314,15 @@ class BrtNode(LifecycleNode):
                 return reason, data
             data[name] = value
         return "", data
+
+    def _lost_agents(self, value: Any, now: float) -> str:
+        """Why the value table cannot be used: it left an agents source's people without the motion margin, and
+        that (optional) source has gone stale since ("" if none)."""
+        for k, source in enumerate(self.sources):
+            made_with = k < len(value.sources_version) and value.sources_version[k] >= 0
+            if source.config.type == "agents" and made_with and source.get(now)[0] is None:
+                return f"value table made with the agents of '{source.config.name}', which are now stale"
+        return ""
 
     def _speed_check(self, state: RobotState) -> tuple[float | None, str]:
         p, tol = self.vf.params, self.config.speed_tolerance
@@ -458,12 +472,14 @@ class BrtNode(LifecycleNode):
     def certificate(self, data: dict[str, Any], epsilon: float) -> least_restrictive.Certificate:
         """W of the checked map and value table: the learned value less ε where the table holds the state, and the
         braking bound on the map's signed distance (less the footprint and the map's own margin) everywhere
-        (core/least_restrictive.py)."""
-        m = data["map"]
-        val = data["value"]
-        return least_restrictive.certificate(self.vf.params,
-                                             lambda points: self.values.clearance(m, points, val.obstacles),
-                                             val.table, epsilon)
+        (core/least_restrictive.py); with tracked agents, the least of that and each agent's relative value
+        (core/tracked_agents.py)."""
+        m, val = data["map"], data["value"]
+        static = least_restrictive.certificate(self.vf.params,
+                                               lambda points: self.values.clearance(m, points, val.obstacles),
+                                               val.table, epsilon)
+        return with_agents(static, self.agent_table, data.get("agents"), self.config.footprint_radius,
+                           data["state"].received)
 
     def _publish_status(self) -> None:
         if self.active:

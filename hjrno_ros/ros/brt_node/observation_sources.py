@@ -8,11 +8,16 @@
 * ``costmap``: a Nav2 costmap as OccupancyGrid (full updates) in the map frame, e.g. the rolling local costmap.
   Its cells at or above ``cost_threshold`` are obstacles; beyond its edge it says nothing ("not observed"): the
   map input covers the robot there, so a rolling window's edge is no wall.
+* ``agents``: tracked agents (people, carts) as sensor_msgs/PointCloud2 in the map frame, one point per agent with
+  float32/float64 fields ``x``, ``y``, ``vx``, ``vy`` (m, m/s) and optionally ``radius`` (m; else ``agent_radius``),
+  like a radar's tracked-object cloud (no people_msgs or radar_msgs on PyPI's ROS 2 wheels).  Each agent gets its
+  own relative value (core/tracked_agents.py; :func:`fresh_agents`); scan returns and costmap cells at an agent are
+  *tracked* and not grown by the motion margin, which the agent's value covers.  It adds no obstacle disks.
 
 Each source answers ``get(now)`` with its newest data or the reason it is unusable (none yet, older than its
 ``timeout``), like the node's other inputs; a stale ``required`` source fails the node closed with the source
 named.  The value worker turns the fresh sources into :class:`~hjrno_ros.core.point_obstacles.PointObstacles`
-(:func:`live_obstacles`).
+(:func:`live_obstacles`); the node and the worker read the fresh agents with :func:`fresh_agents`.
 """
 
 from __future__ import annotations
@@ -26,17 +31,21 @@ from typing import Any
 
 import numpy as np
 from nav_msgs.msg import OccupancyGrid
-from sensor_msgs.msg import LaserScan
+from scipy.spatial import cKDTree
+from sensor_msgs.msg import LaserScan, PointCloud2, PointField
 
 from hjrno_ros.core.point_obstacles import PointObstacles, Pose2, behind, scan_points, transform
+from hjrno_ros.core.tracked_agents import Agents
 from hjrno_ros.ros.brt_node.inputs import MapRejected, parse_map
 from hjrno_ros.ros.brt_node.messages import finite
 from hjrno_ros.ros.brt_node.parameters import Param
 
-SOURCE_TYPES = ("scan", "costmap")
+SOURCE_TYPES = ("scan", "costmap", "agents")
 SOURCE_PARAMETERS: dict[str, Param] = {
     "type": Param("scan", "scan (sensor_msgs/LaserScan, sensor-data QoS) | costmap (a Nav2 costmap as OccupancyGrid "
-                          "in the map frame, full updates, e.g. the rolling local costmap)", read_only=True),
+                          "in the map frame, full updates, e.g. the rolling local costmap) | agents (tracked agents "
+                          "as PointCloud2 in the map frame, fields x, y, vx, vy and optional radius, sensor-data "
+                          "QoS; needs agent_table)", read_only=True),
     "topic": Param("", "the source's topic; '' = the source's name", read_only=True),
     "timeout": Param(0.5, "s: data older than this is stale (receipt time); 0 = never", 0.0, 1e6, read_only=True),
     "required": Param(True, "a stale or missing source fails the node closed; false: it is left out while stale",
@@ -45,9 +54,15 @@ SOURCE_PARAMETERS: dict[str, Param] = {
                                           "odometry's child frame)", read_only=True),
     "cost_threshold": Param(99, "costmap: cost >= threshold is an obstacle (99: Nav2's inscribed cost)", 0, 100,
                             read_only=True),
+    "agent_radius": Param(0.2, "agents: m, an agent's radius when the cloud has no radius field", 0.01, 5.0,
+                          read_only=True),
 }
 STATIC_MATCH = 0.15  # m: scan returns this close to a static-map obstacle are that obstacle (localisation, cells)
 RETURN_DEPTH = 0.2  # m: a scan return is the near edge of a disk this wide in radius behind it (a person's torso)
+AGENT_MATCH = 0.3  # m: a return or cell this far beyond a tracked agent's disk is that agent (tracking, timing)
+AGENT_FIELDS = ("x", "y", "vx", "vy")  # an agents cloud's required fields; "radius" is optional
+FLOAT_FORMATS = {PointField.FLOAT32: "f4", PointField.FLOAT64: "f8"}
+MAX_AGENTS, MAX_AGENT_RADIUS, MAX_AGENT_SPEED = 1000, 5.0, 10.0  # more, larger or faster: a malformed cloud
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,6 +76,7 @@ class SourceConfig:
     required: bool = True
     sensor_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)
     cost_threshold: int = 99
+    agent_radius: float = 0.2
 
     @classmethod
     def build(cls, name: str, values: dict[str, Any]) -> SourceConfig | str:
@@ -78,13 +94,17 @@ class SourceConfig:
             return f"{name}.timeout must be a number >= 0, got {timeout!r}"
         if not 0 <= int(v["cost_threshold"]) <= 100:
             return f"{name}.cost_threshold must lie in [0, 100], got {v['cost_threshold']}"
+        radius, spec = v["agent_radius"], SOURCE_PARAMETERS["agent_radius"]
+        if isinstance(radius, bool) or not isinstance(radius, int | float) or not spec.lo <= radius <= spec.hi:
+            return f"{name}.agent_radius must lie in [{spec.lo:g}, {spec.hi:g}] m, got {radius!r}"
         return cls(name, str(v["type"]), str(v["topic"] or name), float(timeout), bool(v["required"]),
-                   tuple(float(x) for x in pose), int(v["cost_threshold"]))
+                   tuple(float(x) for x in pose), int(v["cost_threshold"]), float(radius))
 
 
 @dataclasses.dataclass(frozen=True)
 class Observation:
-    """A source's newest data: obstacle points in the sensor frame (scan) or the map frame (costmap)."""
+    """A source's newest data: obstacle points in the sensor frame (scan) or the map frame (costmap); for an agents
+    source the agents' positions as points and the agents themselves."""
 
     points: np.ndarray  # (N, 2)
     frame_id: str
@@ -92,6 +112,7 @@ class Observation:
     received: float  # monotonic s
     version: int
     margin: float = 0.0  # m the points are grown by as they are (a costmap cell's half diagonal)
+    agents: Agents | None = None  # an agents source's data
 
 
 def parse_scan(msg: LaserScan) -> np.ndarray:
@@ -117,6 +138,53 @@ def parse_costmap(msg: OccupancyGrid, threshold: int) -> tuple[np.ndarray, float
     return centres.astype(float), m.resolution / math.sqrt(2)
 
 
+def cloud_fields(msg: PointCloud2, required: tuple[str, ...], optional: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+    """The named FLOAT32/FLOAT64 fields of a PointCloud2, one float array (width × height,) each, read from
+    ``data`` by its point_step, row_step, offsets, datatypes and byte order (sensor_msgs_py is not on PyPI);
+    ValueError with one line when a field is missing or not one float or the data's length does not match."""
+    fields = {f.name: f for f in msg.fields}
+    if missing := [name for name in required if name not in fields]:
+        raise ValueError(f"cloud has no field {missing} (fields {sorted(fields)})")
+    names = [name for name in (*required, *optional) if name in fields]
+    formats = [FLOAT_FORMATS.get(fields[name].datatype) for name in names]
+    for name, fmt in zip(names, formats, strict=True):
+        f = fields[name]
+        if fmt is None or f.count > 1 or f.offset + int(fmt[1]) > msg.point_step:
+            raise ValueError(f"cloud field '{name}' has datatype {f.datatype} x {f.count} at offset {f.offset} of "
+                             f"point_step {msg.point_step} (want one FLOAT32 (7) or FLOAT64 (8) inside the point)")
+    width, height, step, row = msg.width, msg.height, msg.point_step, msg.row_step
+    if row < width * step or len(msg.data) != row * height:
+        raise ValueError(f"cloud data has {len(msg.data)} bytes, want row_step {row} x height {height} with "
+                         f"row_step >= width {width} x point_step {step}")
+    if width * height == 0:
+        return {name: np.zeros(0) for name in names}
+    order = ">" if msg.is_bigendian else "<"
+    dtype = np.dtype({"names": names, "formats": [order + fmt for fmt in formats],
+                      "offsets": [fields[name].offset for name in names], "itemsize": step})
+    rows = np.frombuffer(msg.data, np.uint8).reshape(height, row)[:, :width * step]
+    points = np.ascontiguousarray(rows).view(dtype).reshape(-1)
+    return {name: points[name].astype(float) for name in names}
+
+
+def parse_agents(msg: PointCloud2, radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A tracked-agents cloud's positions and velocities (k, 2) and radii (k,) (``radius`` without a radius
+    field); ValueError with one line if it is malformed or implausible (NaN/Inf, a radius outside (0, 5] m, a
+    speed over 10 m/s, over 1000 agents)."""
+    if msg.width * msg.height > MAX_AGENTS:
+        raise ValueError(f"agents cloud has {msg.width * msg.height} points (at most {MAX_AGENTS})")
+    c = cloud_fields(msg, AGENT_FIELDS, ("radius",))
+    positions, velocities = np.stack([c["x"], c["y"]], -1), np.stack([c["vx"], c["vy"]], -1)
+    radii = c.get("radius", np.full(len(positions), float(radius)))
+    if not (np.isfinite(positions).all() and np.isfinite(velocities).all() and np.isfinite(radii).all()):
+        raise ValueError("agents cloud has NaN or Inf values")
+    if np.any((radii <= 0) | (radii > MAX_AGENT_RADIUS)):
+        raise ValueError(f"agents cloud has a radius of {radii.min():.3g} or {radii.max():.3g} m, outside "
+                         f"(0, {MAX_AGENT_RADIUS:g}]")
+    if len(velocities) and (speed := float(np.hypot(*velocities.T).max())) > MAX_AGENT_SPEED:
+        raise ValueError(f"agents cloud has an agent at {speed:.3g} m/s (at most {MAX_AGENT_SPEED:g})")
+    return positions, velocities, radii
+
+
 class ObservationSource:
     """One source: ``on_message`` validates and stores (executor), ``get`` answers data or a reason."""
 
@@ -130,19 +198,24 @@ class ObservationSource:
 
     def on_message(self, msg: Any) -> str | None:
         """Take a message; the rejection reason, or None."""
+        agents = None
         try:
             if self.config.type == "scan":
                 points, margin = parse_scan(msg), 0.0
+            elif self.config.type == "agents":
+                (points, velocities, radii), margin = parse_agents(msg, self.config.agent_radius), 0.0
             else:
                 points, margin = parse_costmap(msg, self.config.cost_threshold)
         except ValueError as err:
             self.rejected += 1
             self.error = f"{self.config.name}: {err}"
             return self.error
-        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        stamp, received = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec, time.monotonic()
+        if self.config.type == "agents":
+            agents = Agents(points, velocities, radii, received)
         with self._lock:
             self._version += 1
-            self.current = Observation(points, msg.header.frame_id, stamp, time.monotonic(), self._version, margin)
+            self.current = Observation(points, msg.header.frame_id, stamp, received, self._version, margin, agents)
         return None
 
     def get(self, now: float) -> tuple[Observation | None, str]:
@@ -155,20 +228,63 @@ class ObservationSource:
             return None, f"observation source '{name}' is {age:.2f} s old (timeout {self.config.timeout:g} s)"
         return c, ""
 
-
     def status(self, now: float) -> dict[str, Any]:
         c = self.current
-        return {"type": self.config.type, "topic": self.config.topic,
-                "age_s": round(now - c.received, 3) if c else None, "points": len(c.points) if c else 0,
-                "rejected": self.rejected, "last_error": self.error}
+        out = {"type": self.config.type, "topic": self.config.topic,
+               "age_s": round(now - c.received, 3) if c else None, "points": len(c.points) if c else 0,
+               "rejected": self.rejected, "last_error": self.error}
+        if self.config.type == "agents":
+            out["agents"] = out["points"]
+        return out
+
+
+def fresh_agents(sources: list[ObservationSource], now: float, map_frame: str) -> tuple[Agents | None, str]:
+    """The fresh ``agents`` sources' agents merged (None without any), or why a source is unusable: a required one
+    stale or missing, any in another frame than the map's (no tf2).  A stale optional source is left out."""
+    parts = []
+    for source in sources:
+        if source.config.type != "agents":
+            continue
+        data, reason = source.get(now)
+        if data is not None and data.frame_id != map_frame:
+            return None, (f"observation source '{source.config.name}' frame '{data.frame_id}' != map frame "
+                          f"'{map_frame}' (no tf2)")
+        if data is None and source.config.required:
+            return None, reason
+        if data is not None:
+            parts.append(data.agents)
+    return (merge_agents(parts) if parts else None), ""
+
+
+def merge_agents(parts: list[Agents]) -> Agents:
+    """One Agents of several, as of the oldest receipt: the newer ones' positions predicted back to it, so that
+    predicting the whole to any time gives each agent where its own data puts it."""
+    received = min(a.received for a in parts)
+    return Agents(np.concatenate([a.predicted(received - a.received) for a in parts]).reshape(-1, 2),
+                  np.concatenate([a.velocities for a in parts]).reshape(-1, 2),
+                  np.concatenate([a.radii for a in parts]), received)
+
+
+def tracked(points: np.ndarray, agents: Agents | None, now: float) -> np.ndarray:
+    """Which ``points`` (N, 2) lie within an agent's radius plus AGENT_MATCH of its position predicted to ``now``."""
+    out = np.zeros(len(points), bool)
+    if agents is None or len(agents) == 0 or len(points) == 0:
+        return out
+    near = cKDTree(points).query_ball_point(agents.predicted(now - agents.received), agents.radii + AGENT_MATCH)
+    hits = [i for group in near for i in group]
+    out[hits] = True
+    return out
 
 
 def live_obstacles(sources: list[ObservationSource], now: float, map_frame: str,
                    pose_at: Callable[[int], Pose2 | None], static_distance: Callable[[np.ndarray], np.ndarray],
-                   moving_margin: float) -> tuple[list[PointObstacles], tuple[int, ...], str]:
-    """The fresh sources' obstacles in the map frame as disks, grown by ``moving_margin`` (m) where they are not the
-    static map (what lies within STATIC_MATCH of a static obstacle is that obstacle, which the map already holds);
-    the sources' data versions; and the reason a required source is unusable ("" if none)."""
+                   moving_margin: float, agents: Agents | None = None
+                   ) -> tuple[list[PointObstacles], tuple[int, ...], str]:
+    """The fresh sources' obstacles in the map frame as disks, grown by ``moving_margin`` (m) where they are neither
+    the static map (what lies within STATIC_MATCH of a static obstacle is that obstacle, which the map already
+    holds) nor a tracked agent in ``agents`` (:func:`fresh_agents`; its own value covers its motion); the sources'
+    data versions (an agents source's too, so that new agents make a new table); and the reason a required
+    source is unusable ("" if none).  Agents sources add no disks."""
     out, versions = [], []
     for source in sources:
         data, reason = source.get(now)
@@ -178,6 +294,9 @@ def live_obstacles(sources: list[ObservationSource], now: float, map_frame: str,
             versions.append(-1)
             continue
         name = source.config.name
+        versions.append(data.version)
+        if source.config.type == "agents":
+            continue
         if source.config.type == "scan":  # returns, and disks behind them, placed with the pose at the scan's time
             pose = pose_at(data.stamp_ns)
             if pose is None:
@@ -190,6 +309,6 @@ def live_obstacles(sources: list[ObservationSource], now: float, map_frame: str,
         else:  # costmap cells: disks of their half diagonal around their centres
             seen, centres, radius = data.points, data.points, data.margin
         static = static_distance(seen) <= STATIC_MATCH + data.margin if len(seen) else np.zeros(0, bool)
-        out += [PointObstacles(centres[static], radius), PointObstacles(centres[~static], radius + moving_margin)]
-        versions.append(data.version)
+        kept = static | tracked(seen, agents, now)
+        out += [PointObstacles(centres[kept], radius), PointObstacles(centres[~kept], radius + moving_margin)]
     return out, tuple(versions), ""

@@ -111,6 +111,10 @@ PARAMETERS: dict[str, Param] = {
     "obstacle_speed_max": Param(1.0, "m/s: how fast a live source's obstacles that are not on the static map "
                                      "(people) may approach; they are grown by this times the robot's time to stop "
                                      "plus command_latency and the source's timeout", 0.0, 10.0, read_only=True),
+    "agent_table": Param("", "tracked agents' relative value tables: a stem or the name of a bundled one "
+                             "(agents_jackal, agents_turtlebot3), solved for this robot by `hjrno agents`; needed by "
+                             "an 'agents' observation source; '' = none (docs/node.md, 'Tracked agents')",
+                         read_only=True),
     "inflation_radius": Param(-1.0, "m: obstacles grown by this much beyond footprint_radius (V0 = signed distance "
                                     "- footprint_radius - inflation_radius); -1 = h/sqrt(2) of the coarser of the "
                                     "model grid (at the robot's size) and the map (makes the interpolated V0 "

@@ -12,6 +12,7 @@ import hjrno_ros
 from hjrno_ros.core.model_card import ModelCard, paths
 from hjrno_ros.core.operator_values import OperatorValues
 from hjrno_ros.core.scaled_values import ScaledValueFunction, covered_scaling, filter_params
+from hjrno_ros.core.tracked_agents import AgentTable, read_agent_table
 from hjrno_ros.core.value_source import ValueSource
 from hjrno_ros.ros.brt_node.config import NodeConfig
 from hjrno_ros.ros.brt_node.robot import robot_params
@@ -50,6 +51,28 @@ def resolve_model(model_path: str) -> Path:
     looked = ", ".join(str(p) for p in bundled_model_candidates(name))
     raise ValueError(f"no bundled model {name!r} found (looked for {looked}); set the model_path parameter "
                      "to a model stem")
+
+
+AGENT_LIMITS = ("a_max", "omega_max", "v_min", "v_max", "tracking_error")  # the table's robot must be the node's
+
+
+def load_agent_table(cfg: NodeConfig, robot: Any) -> AgentTable | None:
+    """The tracked agents' relative value tables of ``agent_table`` (None for ''), checked against the node's
+    ``robot``: they were solved for one robot's limits, which ``hjrno agents`` makes for another.  ValueError, one
+    line."""
+    if not cfg.agent_table:
+        if any(source.type == "agents" for source in cfg.sources):
+            raise ValueError("an 'agents' observation source needs the agent_table parameter (hjrno agents makes one)")
+        return None
+    stem = resolve_model(cfg.agent_table)
+    table = read_agent_table(stem)
+    theirs = {k: table.robot.get(k) for k in AGENT_LIMITS}
+    ours = {k: getattr(robot, k, None) for k in AGENT_LIMITS}
+    if any(not isinstance(theirs[k], int | float) or abs(theirs[k] - ours[k]) > 1e-6 * max(1.0, abs(ours[k]))
+           for k in AGENT_LIMITS):
+        raise ValueError(f"agent table {stem} was solved for a robot with {theirs}, the node's has {ours}: make one "
+                         "for this robot with `hjrno agents`")
+    return table
 
 
 class SolverGrid:

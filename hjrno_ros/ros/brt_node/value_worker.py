@@ -5,7 +5,8 @@ the table is half ``value_timeout`` old or (a slice model's (v, θ) stencil, whi
 ``STENCIL_HORIZON_S``) the robot is half way to its edge, it predicts V∞ on a window centred on the robot (a table
 model: every speed and heading at once) and swaps the table in atomically.
 With observation sources every new observation wakes it and makes a new table: V0 on the window is the minimum
-of the map's signed distance and the fresh sources' (their obstacles off the map grown by the motion margin).
+of the map's signed distance and the fresh sources' (their obstacles off the map grown by the motion margin, but
+those at a tracked agent, whose own value the node's certificate holds).
 With background refinement (and no observation sources), the refined table of the current map replaces the
 operator's while the robot is inside it.  It runs at a lower scheduling priority, so a busy CPU serves commands first.
 ``get`` is the value input of the fail-closed check.
@@ -30,7 +31,7 @@ from hjrno_ros.core.point_obstacles import PointObstacles
 from hjrno_ros.core.value_source import ValueSource
 from hjrno_ros.ros.brt_node.config import NodeConfig
 from hjrno_ros.ros.brt_node.inputs import MapData, MapInput, RobotState, StateInput
-from hjrno_ros.ros.brt_node.observation_sources import ObservationSource, live_obstacles
+from hjrno_ros.ros.brt_node.observation_sources import ObservationSource, fresh_agents, live_obstacles
 from hjrno_ros.ros.brt_node.parameters import obstacle_threshold
 from hjrno_ros.ros.brt_node.refinement import Refinement
 
@@ -185,12 +186,17 @@ class ValueWorker:
 
     def live_obstacles(self, m: MapData, state: RobotState, now: float
                        ) -> tuple[tuple[PointObstacles, ...], tuple[int, ...], str]:
-        """The fresh sources' obstacles in the map frame, their versions, or why a required source is unusable."""
+        """The fresh sources' obstacles in the map frame, their versions, or why a required source is unusable.
+        What a fresh agents source tracks is not grown by the motion margin: the node's certificate holds each
+        agent's own value (an agents source needs the agent table)."""
         if not self.sources:
             return (), (), ""
+        agents, reason = fresh_agents(self.sources, now, m.frame_id)
+        if reason:
+            return (), (), reason
         obstacles, versions, reason = live_obstacles(
             self.sources, now, m.frame_id, lambda stamp: self.states.pose_at(stamp, state),
-            lambda pts: map_distance(m, pts), self.moving_margin())
+            lambda pts: map_distance(m, pts), self.moving_margin(), agents)
         return tuple(obstacles), versions, reason
 
     def v0(self, m: MapData, points: np.ndarray) -> np.ndarray:

@@ -3,7 +3,8 @@ benchmark's and the demo's base, in real time.
 
 :func:`irsim_base` makes the base: IR-SIM's pose and velocity as odometry every ``step_time``, a
 :class:`~hjrno_ros.studies.navigation.GoalDriver` sending the nominal TwistStamped in the same step, IR-SIM stepped
-with the latest filtered command; IR-SIM decides collisions.  ``scan_every`` > 0 publishes IR-SIM's LiDAR scan.
+with the latest filtered command; IR-SIM decides collisions.  ``scan_every`` > 0 publishes IR-SIM's LiDAR scan;
+``agents_every`` > 0 the pedestrians as tracked agents (a perfect tracker: IR-SIM's positions and velocities).
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from typing import Any
 import numpy as np
 from sensor_msgs.msg import LaserScan
 
-from hjrno_ros.ros.harness.sim_base import BaseLog, Rates, SimBase
+from hjrno_ros.ros.harness.sim_base import BaseLog, Rates, SimBase, agents_message
 from hjrno_ros.ros.harness.spin import drive_base
 from hjrno_ros.studies.navigation import EpisodeResult, GoalDriver, NavMap
 
@@ -52,13 +53,16 @@ class PoseDriver:
 
 def irsim_base(world: Any, nav_map: NavMap, driver: GoalDriver, step_time: float = 0.05, direct: bool = False,
                cmd_timeout: float = 0.25, context: Any = None, name: str = "irsim_base",
-               scan_every: int = 0) -> SimBase:
+               scan_every: int = 0, agents_every: int = 0, agents_topic: str = "tracked_agents") -> SimBase:
     """The base for ``world`` driven by ``driver``, its map latched; ``scan_every`` > 0: IR-SIM's LiDAR scan on
-    ``scan`` every that many steps (the world needs its LiDAR)."""
+    ``scan`` every that many steps (the world needs its LiDAR); ``agents_every`` > 0: the pedestrians' true
+    positions, velocities and radii on ``agents_topic`` every that many steps (:func:`agents_message`)."""
     scan = (lambda stamp: scan_message(world.scan(), stamp)) if scan_every else None
+    agents = (lambda stamp: agents_message(world.people_positions, world.people_velocities, world.people_radii,
+                                           stamp)) if agents_every else None
     base = SimBase(context, IrSimPlant(world), PoseDriver(driver), name=name,
                    rates=Rates(step_time, step_time, cmd_timeout), direct=direct, scan=scan, scan_every=scan_every,
-                   keep=100)
+                   keep=100, agents=agents, agents_every=agents_every, agents_topic=agents_topic)
     base.publish_map(nav_map.occupancy(), nav_map.resolution, nav_map.origin)
     return base
 

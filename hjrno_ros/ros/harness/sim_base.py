@@ -6,7 +6,9 @@ from ``cmd_vel``, and a filtered command older than ``cmd_timeout`` counts as ze
 ``direct``: no filter in the loop, the plant executes the nominal.  TwistStamped commands are matched to the node's
 answers by stamp (latency; a change counts as an intervention; a stop that answers none is the node's fail-closed
 timer); Twist commands are compared with the last nominal.  It logs what every user of the harness reads (trace,
-latencies, interventions, value grids, map → value grid latency, the node's status).
+latencies, interventions, value grids, map → value grid latency, the node's status).  With ``agents`` it also
+publishes tracked agents (:func:`agents_message`: a perfect tracker's PointCloud2) for an ``agents`` observation
+source.
 
 The simulated robots (IR-SIM, the kinematic base of the depot check and the product scenes), the node bench's load
 generator, the fuzzer and the DDS tests are all this node with another plant and driver: docs/design.md, "The
@@ -28,7 +30,7 @@ from nav_msgs.msg import OccupancyGrid, Odometry
 from rcl_interfaces.srv import SetParameters
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
-from sensor_msgs.msg import LaserScan
+from sensor_msgs.msg import LaserScan, PointCloud2, PointField
 from std_msgs.msg import String
 from std_srvs.srv import SetBool
 
@@ -37,6 +39,7 @@ from hjrno_ros.ros.harness.commands import StampedCommands, unsafe_grid
 from hjrno_ros.studies.navigation import STOPPED_SPEED, STOPPED_TURN
 
 NODE_NAME = "brt_node"
+AGENTS_QOS = 10  # reliable, volatile, depth 10: what a people tracker publishes (the node subscribes best effort)
 
 
 class Plant(Protocol):
@@ -88,13 +91,15 @@ class Rates:
 
 class SimBase(Node):
     """A simulated base on brt_node's topics (module docstring).  ``stamped``: TwistStamped commands, else Twist;
-    ``scan``: a callable giving the LaserScan to publish every ``scan_every`` physics steps; ``keep_grids``: log the
+    ``scan``: a callable giving the LaserScan to publish every ``scan_every`` physics steps; ``agents``: likewise
+    the tracked agents' PointCloud2 every ``agents_every`` steps on ``agents_topic``; ``keep_grids``: log the
     value grids; ``keep``: how many unanswered stamped commands to remember (None: all)."""
 
     def __init__(self, context: Any, plant: Plant | None, driver: Driver | None = None, *, name: str = "sim_base",
                  rates: Rates | None = None, stamped: bool = True, direct: bool = False,
                  scan: Callable[[Any], LaserScan] | None = None, scan_every: int = 0, keep_grids: bool = True,
-                 keep: int | None = None, frame_id: str = "map") -> None:
+                 keep: int | None = None, frame_id: str = "map", agents: Callable[[Any], PointCloud2] | None = None,
+                 agents_every: int = 0, agents_topic: str = "tracked_agents") -> None:
         super().__init__(name, context=context)
         self.plant, self.driver, self.direct, self.frame_id = plant, driver, direct, frame_id
         self.rates = rates or Rates()
@@ -116,6 +121,8 @@ class SimBase(Node):
         self._map_sent: dict[tuple[int, int], float] = {}
         self.scan, self.scan_every, self._ticks = scan, scan_every, 0
         self.scan_pub = self.create_publisher(LaserScan, "scan", qos_profile_sensor_data) if scan else None
+        self.agents, self.agents_every = agents, agents_every
+        self.agents_pub = self.create_publisher(PointCloud2, agents_topic, AGENTS_QOS) if agents else None
         self._service_clients: dict[str, Any] = {}
         r = self.rates
         if r.physics_s > 0 and plant is not None:
@@ -157,7 +164,7 @@ class SimBase(Node):
             self.send(np.asarray(nominal, float))
 
     def _step(self) -> None:
-        """One physics step with the latest fresh filtered command, then odometry (and a scan when due)."""
+        """One physics step with the latest fresh filtered command, then odometry (and a scan, agents when due)."""
         if self.running and not self.ended:
             t = self.now()
             (x, y, theta), (v, omega) = self.plant.pose(), self.plant.velocity()
@@ -171,6 +178,8 @@ class SimBase(Node):
         self._ticks += 1
         if self.scan is not None and self._ticks % self.scan_every == 0:
             self.scan_pub.publish(self.scan(self.get_clock().now().to_msg()))
+        if self.agents is not None and self._ticks % self.agents_every == 0:
+            self.agents_pub.publish(self.agents(self.get_clock().now().to_msg()))
 
     def odometry(self) -> Odometry:
         """The plant's odometry message, stamped now."""
@@ -255,3 +264,27 @@ class SimBase(Node):
         while not future.done() and time.monotonic() < end:
             time.sleep(0.005)
         return future.result() if future.done() else None
+
+
+def agents_message(positions: np.ndarray, velocities: np.ndarray, radii: np.ndarray | None, stamp: Any,
+                   frame: str = "map", dtype: str = "<f4") -> PointCloud2:
+    """Tracked agents as brt_node's ``agents`` source reads them: a PointCloud2, one point per agent with fields
+    x, y, vx, vy (m, m/s) and radius (m; none when ``radii`` is None), of numpy ``dtype`` (``<f4``; ``>f8``:
+    big-endian FLOAT64), one row; ``stamp`` None: zero."""
+    names = ["x", "y", "vx", "vy", *(["radius"] if radii is not None else [])]
+    columns = [*np.asarray(positions, float).reshape(-1, 2).T, *np.asarray(velocities, float).reshape(-1, 2).T]
+    if radii is not None:
+        columns.append(np.asarray(radii, float).reshape(-1))
+    kind = np.dtype(dtype)
+    msg = PointCloud2()
+    msg.header.frame_id = frame
+    if stamp is not None:
+        msg.header.stamp = stamp
+    msg.height, msg.width = 1, len(columns[0])
+    datatype = PointField.FLOAT64 if kind.itemsize == 8 else PointField.FLOAT32
+    msg.fields = [PointField(name=n, offset=i * kind.itemsize, datatype=datatype, count=1)
+                  for i, n in enumerate(names)]
+    msg.is_bigendian, msg.is_dense = kind.byteorder == ">", True
+    msg.point_step, msg.row_step = len(names) * kind.itemsize, len(names) * kind.itemsize * msg.width
+    msg.data = np.stack(columns, -1).astype(kind).tobytes() if msg.width else b""
+    return msg

@@ -227,3 +227,57 @@ def test_a_rolling_costmap_source_adds_its_cells_and_its_edge_is_no_wall(model_s
         finally:
             stop.set()
             thread.join(timeout=2.0)
+
+
+class Tracker:
+    """Publishes tracked agents (PointCloud2, reliable) at 10 Hz until stopped: one person, or none."""
+
+    def __init__(self, driver, position=None, velocity=(0.0, 0.0)) -> None:
+        from rclpy.qos import QoSProfile
+        from sensor_msgs.msg import PointCloud2
+
+        self.driver, self.position, self.velocity, self.on = driver, position, velocity, True
+        self.pub = driver.create_publisher(PointCloud2, "tracked_agents", QoSProfile(depth=10))
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        from hjrno_ros.ros.harness.sim_base import agents_message
+
+        while not self._stop.wait(0.1):
+            if self.on:
+                people = [] if self.position is None else [self.position]
+                self.pub.publish(agents_message(np.reshape(people, (-1, 2)), np.reshape(
+                    [self.velocity] * len(people), (-1, 2)), np.full(len(people), 0.2),
+                    self.driver.get_clock().now().to_msg()))
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+
+
+def test_a_tracked_person_gets_their_relative_value_instead_of_the_margin(model_stem):
+    """The person 2 m ahead (1.55 m from contact) as the previous test, now also tracked: standing, the command
+    towards them passes (no motion margin: their relative value vouches for the robot); walking at the robot at
+    1 m/s, it is changed; a silent tracker fails the node closed, naming the source."""
+    person = (FAR[0] + 2.0 + RETURN_DEPTH, FAR[1])
+    with driver_and_node(model_stem, DOMAIN + 3, observation_sources=["scan", "people"], obstacle_speed_max=1.0,
+                         agent_table="agents_jackal", a_max=1.0, omega_max=2.0, v_max=1.0, v_min=-1.0,
+                         **DIFF_DRIVE, **{"people.type": "agents", "people.topic": "tracked_agents"}) as (driver, _):
+        scanner, tracker = Scanner(driver, person_ahead(2.0)), Tracker(driver, person)
+        try:
+            driver.pose, driver.v = (*FAR, 0.0), 0.5
+            assert wait_for(lambda: driver.status.get("observation_sources", {}).get("people", {}).get("agents") == 1
+                            and driver.status.get("state") in ("ok", "unsafe_idle", "intervening"), 30.0), \
+                driver.status
+            assert wait_for(lambda: forward(driver, 1.0).linear == pytest.approx(1.0), 5.0), driver.status
+            tracker.velocity = (-1.0, 0.0)  # walking at the robot
+            assert wait_for(lambda: forward(driver, 1.0).linear < 1.0, 5.0), driver.status
+            tracker.on = False
+            assert wait_for(lambda: driver.status.get("state") == "fail_closed", 5.0), driver.status
+            assert "'people'" in driver.status["reason"]
+            assert forward(driver, 1.0).linear == 0.0
+        finally:
+            scanner.stop()
+            tracker.stop()
