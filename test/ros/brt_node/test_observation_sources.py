@@ -118,24 +118,38 @@ def test_returns_on_the_static_map_keep_no_motion_margin():
         ([], (-1,))
 
 
-class Scanner:
-    """Publishes the driver's scans at 10 Hz from ``ranges`` until stopped (the robot's laser)."""
+class Periodic:
+    """Publishes ``self.message()`` on ``topic`` at 10 Hz from a thread while ``on``, until stopped."""
 
-    def __init__(self, driver, ranges: list[float]) -> None:
-        self.driver, self.ranges, self.on = driver, ranges, True
-        self.pub = driver.create_publisher(LaserScan, "scan", qos_profile_sensor_data)
+    def __init__(self, driver, kind, topic: str, qos) -> None:
+        self.driver, self.on = driver, True
+        self.pub = driver.create_publisher(kind, topic, qos)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
 
+    def message(self):
+        raise NotImplementedError
+
     def _run(self) -> None:
         while not self._stop.wait(0.1):
             if self.on:
-                self.pub.publish(scan_msg(self.ranges, self.driver.get_clock().now().to_msg()))
+                self.pub.publish(self.message())
 
     def stop(self) -> None:
         self._stop.set()
         self._thread.join(timeout=2.0)
+
+
+class Scanner(Periodic):
+    """The robot's laser: scans from ``ranges``."""
+
+    def __init__(self, driver, ranges: list[float]) -> None:
+        self.ranges = ranges
+        super().__init__(driver, LaserScan, "scan", qos_profile_sensor_data)
+
+    def message(self) -> LaserScan:
+        return scan_msg(self.ranges, self.driver.get_clock().now().to_msg())
 
 
 def forward(driver, linear: float) -> types.SimpleNamespace:
@@ -229,32 +243,21 @@ def test_a_rolling_costmap_source_adds_its_cells_and_its_edge_is_no_wall(model_s
             thread.join(timeout=2.0)
 
 
-class Tracker:
-    """Publishes tracked agents (PointCloud2, reliable) at 10 Hz until stopped: one person, or none."""
+class Tracker(Periodic):
+    """A people tracker (PointCloud2, reliable): one person at ``position`` walking at ``velocity``."""
 
-    def __init__(self, driver, position=None, velocity=(0.0, 0.0)) -> None:
+    def __init__(self, driver, position, velocity=(0.0, 0.0)) -> None:
         from rclpy.qos import QoSProfile
         from sensor_msgs.msg import PointCloud2
 
-        self.driver, self.position, self.velocity, self.on = driver, position, velocity, True
-        self.pub = driver.create_publisher(PointCloud2, "tracked_agents", QoSProfile(depth=10))
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
+        self.position, self.velocity = position, velocity
+        super().__init__(driver, PointCloud2, "tracked_agents", QoSProfile(depth=10))
 
-    def _run(self) -> None:
+    def message(self):
         from hjrno_ros.ros.harness.sim_base import agents_message
 
-        while not self._stop.wait(0.1):
-            if self.on:
-                people = [] if self.position is None else [self.position]
-                self.pub.publish(agents_message(np.reshape(people, (-1, 2)), np.reshape(
-                    [self.velocity] * len(people), (-1, 2)), np.full(len(people), 0.2),
-                    self.driver.get_clock().now().to_msg()))
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=2.0)
+        return agents_message(np.array([self.position]), np.array([self.velocity]), np.array([0.2]),
+                              self.driver.get_clock().now().to_msg())
 
 
 def test_a_tracked_person_gets_their_relative_value_instead_of_the_margin(model_stem):
