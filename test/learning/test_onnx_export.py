@@ -3,6 +3,7 @@ onnxruntime reproduces torch on realistic windows, and a failed export leaves no
 
 import dataclasses
 import hashlib
+import json
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +20,8 @@ from hjrno_ros.learning.operators.fno import SpectralConv2d
 from hjrno_ros.learning.slices import InputSpec, param_value
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
-BUNDLED = sorted(p.stem for p in MODELS.glob("*.json"))
+BUNDLED = sorted(p.stem for p in MODELS.glob("*.json")  # the operators; the agents' value tables have no network
+                 if json.loads(p.read_text()).get("kind") != "agent_relative")
 
 
 def fft_reference(conv: SpectralConv2d, x: torch.Tensor) -> torch.Tensor:
