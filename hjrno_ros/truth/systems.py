@@ -134,8 +134,8 @@ class AgentRelative(DiffDrive):
     (hj's Lax-Friedrichs dissipation reads the latter); hash and equality include s through the params.
 
     Rest lock: below ``rest_speed`` the robot has no acceleration (v̇ = 0, so no v-dissipation either).  A target
-    whose rest term is a one-node ridge in v (safe at rest, unsafe moving) is lowered by T·Δv by hj's
-    Lax-Friedrichs dissipation at that node, which makes every rest state near the agent unsafe; the lock keeps
+    whose rest term is a one-node ridge in v (safe at rest, unsafe moving) is smoothed away at that node by hj's
+    Lax-Friedrichs dissipation, which makes rest states near the agent unsafe; the lock keeps
     the rest node at the exact value of staying at rest.  It only takes a control away from the maximising
     robot, so the table stays conservative (it forgoes starting from exactly v = 0 to flee)."""
 
