@@ -285,20 +285,6 @@ def cmd_demo(args: argparse.Namespace) -> int:
                     gif=not args.no_gif)
 
 
-def cmd_bench(args: argparse.Namespace) -> int:
-    from hjrno_ros.tools import benchmarks
-
-    return benchmarks.dispatch_args(args)
-
-
-def cmd_agents(args: argparse.Namespace) -> int:
-    from hjrno_ros.studies.navigation import ROBOTS
-    from hjrno_ros.truth import agent_tables
-
-    robot = ROBOTS[args.robot]
-    return agent_tables.main(args, robot.params(), robot.radius)
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="hjrno", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"hjrno_ros {__version__}")
@@ -484,13 +470,13 @@ def build_parser() -> argparse.ArgumentParser:
     from hjrno_ros.tools import benchmarks  # numpy only at import: the parser stays light
 
     benchmarks.add_arguments(p)
-    p.set_defaults(func=cmd_bench)
+    p.set_defaults(func=benchmarks.dispatch_args)
 
     p = sub.add_parser("agents", help="ground-truth value tables against a tracked moving agent (a person)")
-    from hjrno_ros.truth import agent_tables  # numpy only at import
+    from hjrno_ros.tools import agents  # numpy only at import
 
-    agent_tables.add_arguments(p)
-    p.set_defaults(func=cmd_agents)
+    agents.add_arguments(p)
+    p.set_defaults(func=agents.run)
     return parser
 
 

@@ -39,7 +39,12 @@ from hjrno_ros.ros.brt_node import messages, parameters, status
 from hjrno_ros.ros.brt_node.config import NodeConfig
 from hjrno_ros.ros.brt_node.inputs import MapData, MapInput, RobotState, StateInput
 from hjrno_ros.ros.brt_node.interfaces import Interfaces, refuse_invalid_transitions
-from hjrno_ros.ros.brt_node.observation_sources import SOURCE_PARAMETERS, ObservationSource, fresh_agents
+from hjrno_ros.ros.brt_node.observation_sources import (
+    SOURCE_PARAMETERS,
+    ObservationSource,
+    fresh_agents,
+    lost_agents,
+)
 from hjrno_ros.ros.brt_node.refinement import Refinement
 from hjrno_ros.ros.brt_node.value_sources import load_agent_table, load_model
 from hjrno_ros.ros.brt_node.value_worker import ValueWorker, table_state
@@ -305,7 +310,7 @@ class BrtNode(LifecycleNode):
         ]
         if self.agent_table is not None:  # tracked agents: the fresh ones (a stale required source fails closed)
             sources.append(("agents", lambda: fresh_agents(self.sources, now, data["map"].frame_id)))
-            sources.append(("tracked", lambda: (None, self._lost_agents(data["value"], now))))
+            sources.append(("tracked", lambda: (None, lost_agents(self.sources, data["value"].sources_version, now))))
         if self.settings.mode != "least_restrictive":  # these modes read V at the state itself
             sources.append(("value", lambda: self.values.covers(data["value"], data["state"])))
         for name, source in sources:
@@ -314,15 +319,6 @@ class BrtNode(LifecycleNode):
                 return reason, data
             data[name] = value
         return "", data
-
-    def _lost_agents(self, value: Any, now: float) -> str:
-        """Why the value table cannot be used: it left an agents source's people without the motion margin, and
-        that (optional) source has gone stale since ("" if none)."""
-        for k, source in enumerate(self.sources):
-            made_with = k < len(value.sources_version) and value.sources_version[k] >= 0
-            if source.config.type == "agents" and made_with and source.get(now)[0] is None:
-                return f"value table made with the agents of '{source.config.name}', which are now stale"
-        return ""
 
     def _speed_check(self, state: RobotState) -> tuple[float | None, str]:
         p, tol = self.vf.params, self.config.speed_tolerance

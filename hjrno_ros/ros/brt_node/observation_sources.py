@@ -256,6 +256,16 @@ def fresh_agents(sources: list[ObservationSource], now: float, map_frame: str) -
     return (merge_agents(parts) if parts else None), ""
 
 
+def lost_agents(sources: list[ObservationSource], versions: tuple[int, ...], now: float) -> str:
+    """Why a value table made from the sources' data ``versions`` cannot be used ("" if it can): it left an agents
+    source's people without the motion margin, and that (optional) source has gone stale since."""
+    for k, source in enumerate(sources):
+        made_with = k < len(versions) and versions[k] >= 0
+        if source.config.type == "agents" and made_with and source.get(now)[0] is None:
+            return f"value table made with the agents of '{source.config.name}', which are now stale"
+    return ""
+
+
 def merge_agents(parts: list[Agents]) -> Agents:
     """One Agents of several, as of the oldest receipt: the newer ones' positions predicted back to it, so that
     predicting the whole to any time gives each agent where its own data puts it."""

@@ -27,6 +27,7 @@ from hjrno_ros.ros.brt_node.observation_sources import (  # noqa: E402
     SourceConfig,
     fresh_agents,
     live_obstacles,
+    lost_agents,
     parse_agents,
 )
 from hjrno_ros.ros.harness.sim_base import agents_message  # noqa: E402
@@ -145,6 +146,18 @@ def test_fresh_agents_merges_the_fresh_sources_and_names_a_stale_or_foreign_one(
     back.on_message(agents_message(POSITIONS, VELOCITIES, RADII, None, "odom"))
     agents, reason = fresh_agents([front, back], time.monotonic(), "map")
     assert agents is None and "'back' frame 'odom' != map frame 'map'" in reason
+
+
+def test_a_table_made_with_agents_that_went_stale_is_not_used():
+    """An optional agents source let the table leave its people without the motion margin: once it is stale, that
+    table is refused (until the next one, made without it); a table made while it was silent is fine."""
+    scan, people = ObservationSource(SourceConfig("scan", timeout=0.0)), agents_source(timeout=0.5, required=False)
+    people.on_message(agents_message(POSITIONS, VELOCITIES, RADII, None, "map"))
+    made_with, made_without = (1, people.current.version), (1, -1)
+    now = time.monotonic()
+    assert lost_agents([scan, people], made_with, now) == ""
+    assert "agents of 'people', which are now stale" in lost_agents([scan, people], made_with, now + 0.6)
+    assert lost_agents([scan, people], made_without, now + 0.6) == ""
 
 
 def scan_msg(ranges: list[float]) -> LaserScan:
