@@ -153,13 +153,18 @@ def test_no_package_below_ros_loads_rclpy(package):
 
 def test_the_node_runs_its_bundled_default_without_torch():
     """The node's modules and its bundled default loaded the node's way (an ONNX export in the card: onnxruntime),
-    one whole table predicted: torch never imported."""
+    one whole table predicted and read as the least-restrictive filter reads it: neither torch nor scipy.interpolate
+    (only the other filter modes' gradients need it) imported."""
     code = ("import sys\nimport numpy as np\n"
             "from hjrno_ros.ros.brt_node.node import BrtNode\n"
             "from hjrno_ros.ros.brt_node.config import NodeConfig\n"
             "from hjrno_ros.ros.brt_node.value_sources import load_model\n"
             "card, vf, stem = load_model(NodeConfig())\n"
             "table = vf.table(np.ones(vf.shape, np.float32))\n"
-            "print(type(vf).__name__, table.shape, bool(np.isfinite(table).all()), 'torch' in sys.modules)")
+            "window = vf.local_table(np.ones(vf.shape, np.float32), (0.0, 0.0), 0.5, 0.0)\n"
+            "value = window.value(np.array([0.1, 0.2, -0.3, 1.0]))\n"
+            "print(type(vf).__name__, table.shape, bool(np.isfinite(table).all()), bool(np.isfinite(value).all()),\n"
+            "      'torch' in sys.modules, 'scipy.interpolate' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True)
-    assert out.stdout.split() == ["OperatorValues", "(32,", "32,", "9,", "16)", "True", "False"], out.stdout
+    assert out.stdout.split() == ["OperatorValues", "(32,", "32,", "9,", "16)", "True", "True", "False", "False"], \
+        out.stdout

@@ -1,8 +1,9 @@
 """Signed distance l(x, y): positive outside obstacles, ≤ 0 inside, |∇l| ≈ 1 away from kinks.
 
 Two sources: shapes (exact or densely sampled boundaries, evaluated at any points) and
-rasters (occupancy grids, masks), via scipy's Euclidean distance transform with the boundary
-half a cell between occupied and free cells.  Rasters are indexed ``[ix, iy]`` (x first,
+rasters (occupancy grids, masks), via an exact Euclidean distance transform (the ``edt`` package where installed,
+2-4 times faster than scipy's on a map, else scipy's: the same distances) with the boundary half a cell between
+occupied and free cells.  Rasters are indexed ``[ix, iy]`` (x first,
 docs/design.md, "Conventions"); cell (ix, iy) has its centre at origin + (ix + ½, iy + ½)·resolution.
 Points are arrays ``(..., 2)`` of (x, y) in metres.
 """
@@ -219,9 +220,19 @@ def signed_distance_from_mask(mask: np.ndarray, spacing: float) -> np.ndarray:
         return np.full(mask.shape, big)
     if mask.all():
         return np.full(mask.shape, -big)
-    outside = ndimage.distance_transform_edt(~mask) * spacing - 0.5 * spacing
-    inside = ndimage.distance_transform_edt(mask) * spacing - 0.5 * spacing
+    outside = distance_to_false(~mask) * spacing - 0.5 * spacing
+    inside = distance_to_false(mask) * spacing - 0.5 * spacing
     return np.where(mask, -inside, outside)
+
+
+def distance_to_false(mask: np.ndarray) -> np.ndarray:
+    """Euclidean distance (cells) from each True cell's centre to the nearest False cell's centre, 0 on False cells:
+    ``edt`` where installed (the node's map path: docs/node.md, "Map to value table"), else scipy's transform."""
+    try:
+        import edt
+    except ImportError:
+        return ndimage.distance_transform_edt(mask)
+    return edt.edt(np.ascontiguousarray(mask), black_border=False, parallel=1).astype(np.float64)
 
 
 def occupancy_to_mask(occupancy: np.ndarray, occupied_threshold: int = 50, unknown_is_obstacle: bool = True):

@@ -26,6 +26,7 @@ import numpy as np
 
 from hjrno_ros.core.grids import GridSpec
 from hjrno_ros.core.least_restrictive import Certificate
+from hjrno_ros.core.value_table import multilinear
 
 
 @dataclasses.dataclass(frozen=True)
@@ -120,28 +121,8 @@ class AgentTable:
     def _lookup(self, level: np.ndarray, relative: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Multilinear interpolation of the levels' tables at (x, y, ``v``, θ) of ``relative``, positions and speeds
         clamped to the box, θ wrapped; less the margin."""
-        g = self.grid
-        coords = [relative[..., 0], relative[..., 1], v, relative[..., 3]]
-        index, weight = [], []
-        for axis, c in enumerate(coords):
-            n, lo, h = g.shape[axis], g.lo[axis], g.spacings[axis]
-            if axis in g.periodic:
-                f = np.mod((c - lo) / h, n)
-                i0 = np.minimum(np.floor(f).astype(int), n - 1)
-                index.append((i0, (i0 + 1) % n))
-            else:
-                f = np.clip((c - lo) / h, 0.0, n - 1)
-                i0 = np.minimum(np.floor(f).astype(int), n - 2)
-                index.append((i0, i0 + 1))
-            weight.append(f - i0)
-        out = np.zeros(np.shape(v))
-        for corner in range(16):
-            bits = [(corner >> a) & 1 for a in range(4)]
-            w = np.ones(np.shape(v))
-            for a, b in enumerate(bits):
-                w = w * (weight[a] if b else 1.0 - weight[a])
-            out += w * self.values[(level, *(index[a][b] for a, b in enumerate(bits)))]
-        return out - self.margin
+        coords = (relative[..., 0], relative[..., 1], v, relative[..., 3])
+        return multilinear(self.values, self.grid, coords, (level,)) - self.margin
 
 
 def read_agent_table(stem: str | Path) -> AgentTable:

@@ -122,6 +122,9 @@ def run(out: Path, seconds: float = 30.0, model: Path | None = None, scan_rate: 
         "map_p50_ms": _percentile_ms(map_lat, 50),
         "map_p95_ms": _percentile_ms(map_lat, 95),
         "maps_matched": f"{len(map_lat)}/{raw['maps_sent']}",
+        "node_map_p50_ms": (status.get("map_to_table_ms") or {}).get("p50"),
+        "node_map_p95_ms": (status.get("map_to_table_ms") or {}).get("p95"),
+        "signed_distance_ms_last": status.get("signed_distance_ms"),
         "inference_ms_last": status.get("inference_latency_ms"),
         "callback_p95_ms": (status.get("filter_ms") or {}).get("p95"),
         "first_status_s": round(raw["first_status_at"] - spawned, 2) if raw["first_status_at"] else None,
@@ -146,7 +149,8 @@ def run(out: Path, seconds: float = 30.0, model: Path | None = None, scan_rate: 
             f"latency p95 <= {CMD_TARGET_MS:g} ms, map -> value grid p95 <= {MAP_TARGET_MS:g} ms. node_cpu_share is "
             "CPU seconds / wall seconds (1.0 = one core); first_status_s / filtering_s: spawn -> first status / -> "
             "status ok (map, odometry, first value table); idle RSS: when it first filters, before the load; "
-            "peak RSS includes start-up; callback_p95_ms is the time "
+            "peak RSS includes start-up; node_map_* is the node's own time from a map's receipt to the first value "
+            "table made with it (the rest of map_* is DDS and the driver's side); callback_p95_ms is the time "
             "inside the node's command callback (last 200 commands); bypass_* is the same node with the filter "
             f"bypassed via ~/enable ({min(10.0, seconds / 3):g} s after the main run): the rclpy + DDS baseline. "
             "The driver shares the cores."

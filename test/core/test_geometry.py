@@ -60,6 +60,21 @@ def test_occupancy_signed_distance_is_resolution_and_origin_aware():
     assert np.abs(sd - square.sdf(cells)).max() < 0.75 * res
 
 
+def test_the_fast_distance_transform_is_scipys():
+    """The map path's transform (``edt``, in the node's requirements) equals scipy's, to float32 rounding."""
+    import edt  # noqa: F401  (installed: the node's maps take the fast path)
+    from scipy import ndimage
+
+    rng = np.random.default_rng(4)
+    for shape, density in (((120, 90), 0.02), ((64, 64), 0.5), ((1, 50), 0.1), ((30, 1), 0.9)):
+        mask = rng.random(shape) < density
+        mask[0, 0], mask[-1, -1] = True, False
+        ours = geo.distance_to_false(mask)
+        assert ours.dtype == np.float64 and ours.shape == shape
+        np.testing.assert_allclose(ours, ndimage.distance_transform_edt(mask), rtol=1e-6, atol=1e-4)
+    assert not geo.distance_to_false(np.zeros((5, 5), bool)).any()
+
+
 def test_unknown_cells_and_thresholds():
     occ = np.zeros((20, 20), np.int16)
     occ[5, 5] = -1

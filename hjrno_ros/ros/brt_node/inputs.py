@@ -93,6 +93,8 @@ class MapInput:
         self.error = ""  # the last rejection
         self.rejected = 0
         self.dirty = False  # threshold or unknown handling changed: recompute the signed distance
+        self.signed_distance_ms: float | None = None  # the last install's signed-distance time
+        self.recomputed_version = -1  # the version that re-installed the current map (no new message)
 
     def _next_version(self) -> int:
         with self._lock:
@@ -122,13 +124,16 @@ class MapInput:
             m, self.incoming = self.incoming, None
         if m is None and self.dirty and self.current is not None:
             m = dataclasses.replace(self.current, version=self._next_version())
+            self.recomputed_version = m.version
         self.dirty = False
         if m is None:
             return None
+        start = time.perf_counter()
         try:
             self.current = with_signed_distance(m, occupied_threshold, unknown_is_obstacle)
         except MapRejected as err:
             return self.reject(err)
+        self.signed_distance_ms = 1e3 * (time.perf_counter() - start)
         return None
 
     def get(self, now: float, timeout: float) -> tuple[MapData | None, str]:

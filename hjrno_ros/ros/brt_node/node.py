@@ -443,7 +443,9 @@ class BrtNode(LifecycleNode):
             refinement=refinement.status(self.maps.current) if refinement is not None else None,
             model=str(self.model_stem), runtime=self.vf.runtime, symmetry_average=self.card.symmetry_average,
             sources={src.config.name: src.status(now) for src in self.sources},
-            reaction_ms=status.summary_ms(self.values.reaction_s))
+            reaction_ms=status.summary_ms(self.values.reaction_s),
+            map_reaction_ms=status.summary_ms(self.values.map_reaction_s),
+            signed_distance_ms=self.maps.signed_distance_ms)
 
     def _present_decision(self, now: float, data: dict[str, Any]) -> safety_filter.Decision | None:
         """What the filter would do now with the last nominal command, if one came within stop_pub_timeout."""

@@ -18,7 +18,7 @@ LEVELS = {"ok": DiagnosticStatus.OK, "intervening": DiagnosticStatus.OK, "clippe
           "bypassed": DiagnosticStatus.WARN, "unsafe_idle": DiagnosticStatus.WARN,
           "fail_closed": DiagnosticStatus.ERROR}
 NESTED = ("dropped", "counts", "value_grid", "robot", "filter_ms", "refinement", "cmd_type_mismatch",
-          "observation_sources", "observation_to_table_ms")
+          "observation_sources", "observation_to_table_ms", "map_to_table_ms")
 
 
 @dataclasses.dataclass
@@ -142,6 +142,8 @@ class StatusInputs:
     symmetry_average: Any
     sources: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)  # per observation source
     reaction_ms: dict[str, float] | None = None  # observation received -> value table, last 200
+    map_reaction_ms: dict[str, float] | None = None  # map received -> its first value table, last 200
+    signed_distance_ms: float | None = None  # the last map's signed distance
 
 
 def build(s: StatusInputs) -> dict[str, Any]:
@@ -179,6 +181,8 @@ def build(s: StatusInputs) -> dict[str, Any]:
         "symmetry_average": s.symmetry_average,
         "observation_sources": s.sources,
         "observation_to_table_ms": s.reaction_ms,
+        "map_to_table_ms": s.map_reaction_ms,
+        "signed_distance_ms": None if s.signed_distance_ms is None else round(s.signed_distance_ms, 2),
     }
 
 

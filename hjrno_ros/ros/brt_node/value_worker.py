@@ -94,6 +94,7 @@ class ValueWorker:
         self.refinement = refinement
         self.sources = list(sources or [])
         self.reaction_s: collections.deque[float] = collections.deque(maxlen=200)  # observation received -> table
+        self.map_reaction_s: collections.deque[float] = collections.deque(maxlen=200)  # map received -> its 1st table
         self.value: ValueData | None = None
         self.error = ""  # the last inference failure; "" after a success
         self.inferences = self.errors = 0
@@ -240,6 +241,8 @@ class ValueWorker:
             table = self.vf.local_table(v0, center, v, state.theta, reach=self.reach)
         else:
             table = refined.table
+        if cfg.filter_mode != "least_restrictive":  # the other modes read ∇V: make it here, not on a command
+            table.prepare_gradient()
         latency = 1e3 * (time.perf_counter() - start)
         nodes = self.vf.window_points(center, self.grid_shape)
         states = np.concatenate([nodes, np.broadcast_to([v, state.theta], (*nodes.shape[:2], 2))], -1)
@@ -250,9 +253,12 @@ class ValueWorker:
                 "theta": state.theta, "center": list(center), "inflation_radius": self.inflation(m.resolution),
                 "source": "refined" if refined else "operator"}
         previous = self.value.sources_version if self.value is not None else ()
+        new_map = m.version != getattr(self.value, "map_version", None) and m.version != self.maps.recomputed_version
         self.value = ValueData(table, center, v, state.theta, time.monotonic(), m.version, latency, info,
                                info["source"], refined.horizon if refined else 0.0, obstacles, versions)
         self._record_reaction(versions, previous)
+        if new_map:
+            self.map_reaction_s.append(time.monotonic() - m.received)
         self.error = ""
         self.inferences += 1
         if not self._stop.is_set():
