@@ -1,14 +1,15 @@
 """``hjrno bench people``: brt_node with a laser, and with tracked agents, among pedestrians in IR-SIM, over DDS.
 
 Four pedestrians walk at 0.5–1.0 m/s with IR-SIM's social-force behaviour (they avoid each other, walls and the
-robot, as people do, but not always in time): two along the robot's route against it (between its goals), two
-between random points of the map. The static map lacks them; the robot's drivers (the Nav2-like follower and the
-careless driver of the navigation benchmark) are blind to them. ``brt_node`` gets the static map and IR-SIM's LiDAR
-as a ``scan`` observation source at 10 Hz (``obstacle_speed_max`` its default, 1 m/s); ``brt_node+agents`` also gets
-the pedestrians as tracked agents (a perfect tracker: IR-SIM's positions and velocities, PointCloud2 at 10 Hz) with
-the robot's relative value tables (docs/design.md, "Tracked agents"). The baseline ``stop_zone`` is
-collision_monitor's stop polygon and approach model, seeing the people exactly. Each case also runs without people,
-so that goals and time to goal compare with the same episodes on an empty floor.
+robot, as people do, but not always in time): two along the robot's route against it (turning up to 1 m short
+of its goals: :func:`turning_points`), two between random points of the map. The static map lacks them; the
+robot's drivers (the Nav2-like follower and the careless driver of the navigation benchmark) are blind to them.
+``brt_node`` gets the static map and IR-SIM's LiDAR as a ``scan`` observation source at 10 Hz
+(``obstacle_speed_max`` its default, 1 m/s); ``brt_node+agents`` also gets the pedestrians as tracked agents (a
+perfect tracker: IR-SIM's positions and velocities, PointCloud2 at 10 Hz) with the robot's relative value tables
+(docs/design.md, "Tracked agents"). The baseline ``stop_zone`` is collision_monitor's stop polygon and approach
+model, seeing the people exactly. Each case also runs without people, so that goals and time to goal compare with
+the same episodes on an empty floor.
 
 Reported per (driver, filter, people): collisions split by the robot's speed at contact (IR-SIM's own check; moving:
 |v| > 0.02 m/s, else a person walked into a stopped robot), the least gap between the robot's and a person's disks,
@@ -21,6 +22,7 @@ import contextlib
 import json
 import platform
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -34,16 +36,43 @@ from hjrno_ros.tools.nav_bench import DRIVERS, INTERRUPT, STEP, node_params
 MOVING = 0.02  # m/s: the robot moved into the contact above this speed
 SCAN_EVERY = 2  # steps of STEP s between LaserScans: 10 Hz
 SEED_OFFSET = 7  # the random pedestrians' seed, after the episodes'
+TURN_SHORT = 1.0  # m: the walkers on the robot's route turn this far short of its goals and start
+WALKER_CLEARANCE = 0.4  # m: a turning point's least distance to a wall
 AGENTS_TOPIC = "tracked_agents"  # brt_node+agents: IR-SIM's pedestrians as a perfect tracker's PointCloud2
 
 
+def turning_points(a: tuple[float, float], b: tuple[float, float], clearance: Callable[[np.ndarray], np.ndarray],
+                   short: float = TURN_SHORT) -> tuple[tuple[float, float], tuple[float, float]]:
+    """A walker's turning points on the segment a–b, up to ``short`` m inside each end (at most a third of the
+    segment; less where the point would lie within WALKER_CLEARANCE of a wall, the end itself at worst): a walker
+    whose turning point is the robot's goal stands beside the robot as long as the robot is there (its social force
+    pushes it off the robot, its goal pulls it back), and the robot waits for it: neither moves."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    length = float(np.linalg.norm(b - a))
+    if length == 0:
+        return tuple(map(float, a)), tuple(map(float, b))
+    unit = (b - a) / length
+
+    def inside(end: np.ndarray, direction: np.ndarray) -> tuple[float, float]:
+        for d in np.linspace(min(short, length / 3), 0.0, 6):
+            point = end + d * direction
+            if d == 0 or float(clearance(point[None])[0]) >= WALKER_CLEARANCE:
+                return tuple(map(float, point))
+        return tuple(map(float, end))
+
+    return inside(a, unit), inside(b, -unit)
+
+
 def people_for(nav_map: nav.NavMap, robot: nav.Robot, episode: nav.Episode, seed: int) -> tuple:
-    """Four pedestrians: two on the robot's route against it, two between random free points."""
+    """Four pedestrians: two on the robot's route against it (turning short of its goals), two between random free
+    points."""
     from hjrno_ros.studies.irsim_world import Person
 
     start, goals = episode.start[:2], episode.goals
     others = nav.draw_episodes(nav_map, robot, 2, 1, seed + SEED_OFFSET)
-    people = [Person((goals[0], tuple(start)), speed=0.8), Person((goals[-1], goals[0]), speed=1.0),
+    clearance = nav_map.clearance(nav_map.sd)
+    people = [Person(turning_points(goals[0], tuple(start), clearance), speed=0.8),
+              Person(turning_points(goals[-1], goals[0], clearance), speed=1.0),
               *(Person((e.start[:2], e.goals[0]), speed=0.5 + 0.25 * k) for k, e in enumerate(others))]
     far = [p for p in people if np.hypot(*(np.asarray(p.waypoints[0]) - start)) >= 1.5]  # none on the robot
     return tuple(far)
@@ -215,8 +244,9 @@ def write(out: Path, rows: list[dict], run: dict) -> None:
               "step_s": STEP, **run, "rows": rows}
     note = (f"`hjrno bench people` on {report['machine']}, {report['date']}: {run['robot']} on {run['map']}, "
             f"{run['episodes_per_case']} episodes per case of {run['seconds']:g} s, 4 social-force pedestrians at "
-            "0.5-1.0 m/s (2 on the robot's route against it), IR-SIM's LiDAR at 10 Hz as brt_node's scan source "
-            "(obstacle_speed_max per row: the motion margin of returns off the map); brt_node+agents also gets the "
+            "0.5-1.0 m/s (2 on the robot's route against it, turning short of its goals), IR-SIM's LiDAR at 10 Hz as "
+            "brt_node's scan source (obstacle_speed_max per row: the motion margin of returns off the map); "
+            "brt_node+agents also gets the "
             "pedestrians' true positions and velocities at 10 Hz as a tracked-agents source (relative value tables "
             "solved for agents deviating from their velocity by agent_deviation m/s; their returns keep no margin); "
             "stop_zone is collision_monitor's stop polygon and approach model with the "

@@ -3,6 +3,7 @@ with tracked agents over real DDS; the rows it writes and the safety it claims."
 
 import json
 
+import numpy as np
 import pytest
 
 pytest.importorskip("rclpy")
@@ -26,3 +27,20 @@ def test_people_bench_rows_and_no_moving_contact_with_tracked_agents(tmp_path):
     assert "| brt_node+agents |" in (tmp_path / "people.md").read_text()
     with pytest.raises(ValueError, match="filters"):
         people_bench.run(tmp_path, filters=("magic",))
+
+
+def test_walkers_on_the_route_turn_short_of_the_robots_goals_and_off_the_walls():
+    from hjrno_ros.studies import navigation as nav
+
+    open_floor = lambda points: np.full(len(points), 10.0)  # noqa: E731
+    assert people_bench.turning_points((0.0, 0.0), (4.0, 0.0), open_floor) == ((1.0, 0.0), (3.0, 0.0))
+    assert people_bench.turning_points((0.0, 0.0), (1.5, 0.0), open_floor) == ((0.5, 0.0), (1.0, 0.0))  # a third
+    robot, plan = nav.ROBOTS["jackal"], nav.floor_plan_map(1000001)
+    clearance = plan.clearance(plan.sd)
+    for k, e in enumerate(nav.draw_episodes(plan, robot, 4, 3, 0)):
+        walkers = people_bench.people_for(plan, robot, e, k)
+        for person, ends in zip(walkers[:2], [(e.goals[0], e.start[:2]), (e.goals[-1], e.goals[0])], strict=True):
+            for point, end in zip(person.waypoints, ends, strict=True):
+                inward = np.linalg.norm(np.subtract(point, end))
+                assert 0.0 < inward <= people_bench.TURN_SHORT + 1e-9, (k, point, end)  # off the goal, near it
+                assert clearance(np.array([point]))[0] >= people_bench.WALKER_CLEARANCE
