@@ -319,6 +319,18 @@ class IrSimWorld:
         return (np.array(data["ranges"], dtype=float), float(data["angle_min"]), float(data["angle_increment"]),
                 float(data["range_max"]))
 
+    def scan_points(self) -> np.ndarray:
+        """The last LiDAR scan's returns ``(k, 2)`` in the world frame (m; beams that hit nothing left out), or none
+        without a LiDAR."""
+        scan = self.scan()
+        if scan is None:
+            return np.zeros((0, 2))
+        ranges, angle_min, increment, range_max = scan
+        hit = ranges < range_max - 1e-9
+        x, y, theta = self.pose  # the LiDAR sits at the robot's centre
+        angles = theta + angle_min + increment * np.arange(len(ranges))[hit]
+        return np.stack([x + ranges[hit] * np.cos(angles), y + ranges[hit] * np.sin(angles)], -1)
+
     def close(self) -> None:
         """End the IR-SIM environment (its log sinks go with it); safe to call twice."""
         if not self._closed:

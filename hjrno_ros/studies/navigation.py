@@ -41,6 +41,7 @@ PLANNER_MARGIN = 0.1  # m beyond the footprint the planner's paths keep (as a co
 # filter lets the robot follow
 PROGRESS_RADIUS, PROGRESS_TIME = 0.5, 10.0  # m, s: Nav2's progress checker defaults
 BACKUP_DISTANCE, BACKUP_SPEED = 0.3, 0.15  # m, m/s: Nav2's BackUp recovery (behavior tree defaults)
+REPLAN_PERIOD = 1.0  # s: Nav2's navigate_w_replanning_and_recovery tree replans at 1 Hz
 
 
 @dataclasses.dataclass(frozen=True)
@@ -169,12 +170,15 @@ class GoalDriver:
 
     def __init__(self, kind: str, nav_map: NavMap, robot: Robot, episode: Episode, interrupt_every: float = 0.0,
                  sd: np.ndarray | None = None, inflation_weight: float = 3.0,
-                 planner_map: NavMap | None = None) -> None:
+                 planner_map: NavMap | None = None, sensed: Callable[[], np.ndarray] | None = None) -> None:
         """``inflation_weight``: the planner's extra cost near obstacles, in the shape of Nav2's inflation layer (0:
         A* on the map inflated by the footprint only, shortest paths that hug every corner, which pure pursuit then
         cuts: a follower that collides on its own, and deadlocks at corners under any filter).  ``planner_map``: the
         map the planner knows at first (a static map without an obstacle that is there); after a recovery it plans
-        on ``nav_map``, as Nav2's global costmap holds what its sensors have seen by then."""
+        on ``nav_map``, as Nav2's global costmap holds what its sensors have seen by then.  ``sensed``: the x-y points
+        ``(k, 2)`` the robot's sensors see now (a LiDAR's returns); a follower given them replans every REPLAN_PERIOD
+        s on its map with them marked, as Nav2's planner does on a global costmap with an obstacle layer (people in
+        its way included), and keeps its path when no plan reaches the goal."""
         if kind not in ("follower", "careless"):
             raise ValueError(f"unknown driver {kind!r}")
         self.kind, self.robot, self.episode, self.interrupt_every = kind, robot, episode, interrupt_every
@@ -191,6 +195,7 @@ class GoalDriver:
         self.follower: RegulatedPurePursuit | None = None
         self._anchor: tuple[np.ndarray, float] | None = None  # the progress checker's last position and time
         self._backing_until = -math.inf
+        self.sensed, self._replanned = sensed, -math.inf
 
     def _plan(self, a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
         return plan(self.grid, a, b, self.robot.radius + PLANNER_MARGIN, weight=self.inflation_weight,
@@ -220,6 +225,22 @@ class GoalDriver:
             self.follower = None
             return True
         return False
+
+    def _replan(self, pose: np.ndarray, t: float) -> None:
+        """With ``sensed``: every REPLAN_PERIOD s, the path to the goal planned again on the map with the sensed points'
+        cells marked occupied (the last plan is kept when none reaches the goal)."""
+        if self.sensed is None or t - self._replanned < REPLAN_PERIOD:
+            return
+        self._replanned = t
+        marked = self.grid.obstacles.copy()
+        ij = np.floor((np.asarray(self.sensed(), float).reshape(-1, 2) - self.grid.origin) / self.grid.resolution)
+        ij = ij[np.all((ij >= 0) & (ij < marked.shape), axis=1)].astype(int)
+        marked[ij[:, 0], ij[:, 1]] = True
+        grid = Grid2D(marked, self.grid.origin, self.grid.resolution)
+        path = plan(grid, pose[:2], np.asarray(self.episode.goals[self.goal]), self.robot.radius + PLANNER_MARGIN,
+                    weight=self.inflation_weight)
+        if path is not None:
+            self.paths[self.goal], self.follower = path, None
 
     @property
     def finished(self) -> bool:
@@ -251,6 +272,7 @@ class GoalDriver:
             return linear, float(np.clip(2.0 * error, -self.robot.omega_max, self.robot.omega_max))
         if self._recovering(pose, t):
             return -min(BACKUP_SPEED, -self.robot.v_min), 0.0
+        self._replan(pose, t)
         follower = self._follower()
         return (0.0, 0.0) if follower is None else follower.command(pose)
 

@@ -31,7 +31,7 @@ from hjrno_ros.core.atomic import atomic_write
 from hjrno_ros.core.stop_zone import StopZoneSettings, stop_zone_filter
 from hjrno_ros.core.tables import records_table
 from hjrno_ros.studies import navigation as nav
-from hjrno_ros.tools.nav_bench import DRIVERS, INTERRUPT, STEP, node_params
+from hjrno_ros.tools.nav_bench import INTERRUPT, STEP, node_params
 
 MOVING = 0.02  # m/s: the robot moved into the contact above this speed
 SCAN_EVERY = 2  # steps of STEP s between LaserScans: 10 Hz
@@ -79,15 +79,20 @@ def people_for(nav_map: nav.NavMap, robot: nav.Robot, episode: nav.Episode, seed
 
 
 FILTERS = ("none", "stop_zone", "brt_node", "brt_node+agents")
+DRIVERS = ("follower", "careless", "replanning")  # replanning: the follower with the LiDAR in its planner's costmap
+BLIND = ("follower", "careless")  # the default: drivers blind to people
 
 
 def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str = "plan1000001",
         seconds: float | None = None, model: str | None = None, obstacle_speed_max: float = 1.0,
-        filters: tuple[str, ...] = FILTERS, agent_table: str | None = None, progress=print) -> int:
+        filters: tuple[str, ...] = FILTERS, agent_table: str | None = None, progress=print,
+        drivers: tuple[str, ...] = BLIND) -> int:
     """The benchmark; returns 1 when brt_node drove into something.  Rows merge into ``out``/people.json by
     (driver, filter, obstacle_speed_max, agent_deviation), into people.json for the Jackal and people_<robot>.json
     for another robot.  ``seconds`` per episode: the navigation benchmark's for the robot.  ``agent_table``: the
-    tracked agents' tables (default: the bundled ``agents_<robot>``)."""
+    tracked agents' tables (default: the bundled ``agents_<robot>``).  ``drivers``: the drivers blind to people by
+    default; ``replanning`` is the follower with the LiDAR's returns marked in its planner's map, planning again
+    every second (Nav2's planner on a global costmap with an obstacle layer)."""
     from hjrno_ros.core.tracked_agents import read_agent_table
     from hjrno_ros.studies.irsim_world import DiffDriveBase, IrSimWorld
     from hjrno_ros.tools.nav_bench import DURATION, ROOT
@@ -95,6 +100,8 @@ def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str 
     unknown = set(filters) - set(FILTERS)
     if unknown:
         raise ValueError(f"people bench filters are {FILTERS}, got {sorted(unknown)}")
+    if set(drivers) - set(DRIVERS):
+        raise ValueError(f"people bench drivers are {DRIVERS}, got {sorted(set(drivers) - set(DRIVERS))}")
     model = model or str(ROOT / "models" / "default")
     seconds = seconds or DURATION[robot_name]
     agent_table = agent_table or str(ROOT / "models" / f"agents_{robot_name}")
@@ -114,12 +121,14 @@ def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str 
     started = time.perf_counter()
     for name in filters:
         with _filter_runner(name, nav_map, robot, sd, model, obstacle_speed_max, seconds, agent_table) as drive_one:
-            for driver_kind in DRIVERS:
+            for driver_kind in drivers:
+                replanning = driver_kind == "replanning"
                 for people in (False, True):
                     t0, results = time.perf_counter(), []
                     for k, e in enumerate(eps):
-                        w = world(e, k, people, lidar=name.startswith("brt_node"))
-                        driver = nav.GoalDriver(driver_kind, nav_map, robot, e, INTERRUPT, sd)
+                        w = world(e, k, people, lidar=name.startswith("brt_node") or replanning)
+                        driver = nav.GoalDriver("follower" if replanning else driver_kind, nav_map, robot, e,
+                                                INTERRUPT, sd, sensed=w.scan_points if replanning else None)
                         try:
                             results.append((drive_one(w, driver, e), w.contact_speed, w.min_people_clearance))
                         finally:
@@ -131,7 +140,7 @@ def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str 
     rows = [{**summarize(driver_kind, name, runs[(driver_kind, name, True)], runs[(driver_kind, name, False)]),
              "obstacle_speed_max": obstacle_speed_max if name == "brt_node" else None,
              "agent_deviation": deviation if name == "brt_node+agents" else None}
-            for driver_kind in DRIVERS for name in filters]
+            for driver_kind in drivers for name in filters]
     write(Path(out), rows, {"episodes_per_case": episodes, "robot": robot_name, "map": map_name, "seconds": seconds,
                             "model": str(model), "wall_s": round(time.perf_counter() - started)})
     progress(f"wrote {Path(out) / ('people' if robot_name == 'jackal' else 'people_' + robot_name)}.md")

@@ -49,6 +49,29 @@ def test_goal_driver_interrupts_with_spins_and_reversing(plan_map):
     assert driver(pose, 2.0)[0] >= 0.0
 
 
+def test_a_follower_that_senses_replans_around_what_it_sees_once_a_second(plan_map):
+    robot = nav.ROBOTS["jackal"]
+    episode = nav.draw_episodes(plan_map, robot, 1, 2, seed=3)[0]
+    blind = nav.GoalDriver("follower", plan_map, robot, episode)
+    path = blind.paths[0]
+    middle = path[len(path) // 2]  # a person standing on the middle of the planned path: a ring of returns
+    ring = middle + 0.2 * np.stack([np.cos(np.linspace(0, 2 * np.pi, 24)), np.sin(np.linspace(0, 2 * np.pi, 24))], -1)
+    seen = []
+    sensing = nav.GoalDriver("follower", plan_map, robot, episode, sensed=lambda: seen.append(1) or ring)
+    start = np.array(episode.start)
+    sensing(start, 0.0)
+    replanned = sensing.paths[0]
+    assert len(seen) == 1 and replanned is not path and np.linalg.norm(replanned[-1] - episode.goals[0]) < 1e-9
+    gap = np.linalg.norm(replanned[:, None] - ring[None], axis=-1).min()
+    assert gap > robot.radius  # the new path keeps the footprint off what was sensed; the old one ran through it
+    assert np.linalg.norm(path[:, None] - ring[None], axis=-1).min() < robot.radius
+    sensing(start, 0.5)
+    assert len(seen) == 1  # not again within the second
+    sensing(start, 1.0)
+    assert len(seen) == 2
+    assert blind.sensed is None and blind(start, 0.0) is not None  # without sensing: the plan made at the start
+
+
 def test_nav_bench_rows_lockstep_and_over_dds(tmp_path):
     """One short careless episode per filter on a held-out plan with the Jackal: the benchmark's rows, the learned
     filter in process and brt_node over DDS never collide, and the node never fails closed."""

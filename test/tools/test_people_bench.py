@@ -27,6 +27,8 @@ def test_people_bench_rows_and_no_moving_contact_with_tracked_agents(tmp_path):
     assert "| brt_node+agents |" in (tmp_path / "people.md").read_text()
     with pytest.raises(ValueError, match="filters"):
         people_bench.run(tmp_path, filters=("magic",))
+    with pytest.raises(ValueError, match="drivers"):
+        people_bench.run(tmp_path, drivers=("magic",))
 
 
 def test_walkers_on_the_route_turn_short_of_the_robots_goals_and_off_the_walls():

@@ -60,6 +60,7 @@ def test_transient_local_map_before_start_is_received(ros):
     assert wait_for(lambda: driver.status.get("map_stamp") == [1, 0], 10.0), driver.status
     st = settle(driver, *FAR, 0.5, 0.0)
     assert not st["reason"].startswith("no map")
+    assert st["signed_distance_ms"] > 0 and st["map_to_table_ms"]["p50"] >= st["signed_distance_ms"]  # its own part
 
 
 def test_far_from_obstacles_command_passes_unchanged(ros):
