@@ -3,7 +3,8 @@
 Four pedestrians walk at 0.5–1.0 m/s with IR-SIM's social-force behaviour (they avoid each other, walls and the
 robot, as people do, but not always in time): two along the robot's route against it (turning up to 1 m short
 of its goals: :func:`turning_points`), two between random points of the map. The static map lacks them; the
-robot's drivers (the Nav2-like follower and the careless driver of the navigation benchmark) are blind to them.
+robot's drivers (the Nav2-like follower and the careless driver of the navigation benchmark) are blind to them;
+``--drivers replanning`` adds the follower that plans around its LiDAR's returns every second, as Nav2's does.
 ``brt_node`` gets the static map and IR-SIM's LiDAR as a ``scan`` observation source at 10 Hz
 (``obstacle_speed_max`` its default, 1 m/s); ``brt_node+agents`` also gets the pedestrians as tracked agents (a
 perfect tracker: IR-SIM's positions and velocities, PointCloud2 at 10 Hz) with the robot's relative value tables
@@ -57,8 +58,8 @@ def turning_points(a: tuple[float, float], b: tuple[float, float], clearance: Ca
         for d in np.linspace(min(short, length / 3), 0.0, 6):
             point = end + d * direction
             if d == 0 or float(clearance(point[None])[0]) >= WALKER_CLEARANCE:
-                return tuple(map(float, point))
-        return tuple(map(float, end))
+                break
+        return tuple(map(float, point))
 
     return inside(a, unit), inside(b, -unit)
 
