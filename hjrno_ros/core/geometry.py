@@ -3,8 +3,9 @@
 Two sources: shapes (exact or densely sampled boundaries, evaluated at any points) and
 rasters (occupancy grids, masks), via an exact Euclidean distance transform (the ``edt`` package where installed,
 2-4 times faster than scipy's on a map, else scipy's: the same distances) with the boundary half a cell between
-occupied and free cells.  Rasters are indexed ``[ix, iy]`` (x first,
-docs/design.md, "Conventions"); cell (ix, iy) has its centre at origin + (ix + ½, iy + ½)·resolution.
+occupied and free cells; numpy alone otherwise, so that the node, which has ``edt``, loads no scipy (docs/node.md).
+Rasters are indexed ``[ix, iy]`` (x first, docs/design.md, "Conventions"); cell (ix, iy) has its centre at
+origin + (ix + ½, iy + ½)·resolution.
 Points are arrays ``(..., 2)`` of (x, y) in metres.
 """
 
@@ -16,7 +17,6 @@ from collections.abc import Sequence
 from typing import Protocol
 
 import numpy as np
-from scipy import ndimage
 
 from hjrno_ros.core.grids import GridSpec
 
@@ -204,6 +204,26 @@ def union_sdf(shapes: Sequence[Shape], points: np.ndarray) -> np.ndarray:
     return np.minimum.reduce([s.sdf(points) for s in shapes])
 
 
+def union_inside(shapes: Sequence[Shape], points: np.ndarray, block: int = 8) -> np.ndarray:
+    """Whether each node of a lattice of ``points`` ``(nx, ny, 2)`` lies in the union of ``shapes`` (signed distance
+    ≤ 0), as ``union_sdf(shapes, points) <= 0`` but cheaper: each shape's distance is read at the centres of blocks
+    of ``block`` × ``block`` nodes first, and since it is 1-Lipschitz a block whose centre reads more than the
+    block's radius lies wholly outside that shape.  A floor plan's mask then costs its shapes' areas, not every
+    node against every shape."""
+    pts = np.asarray(points, float)
+    nx, ny = pts.shape[:2]
+    padded = np.pad(pts, ((0, -nx % block), (0, -ny % block), (0, 0)), mode="edge")  # repeats real nodes
+    tiles = padded.reshape(padded.shape[0] // block, block, padded.shape[1] // block, block, 2).swapaxes(1, 2)
+    centres = tiles.mean((2, 3))
+    radius = np.linalg.norm(tiles - centres[:, :, None, None], axis=-1).max((2, 3))
+    out = np.zeros((nx, ny), bool)
+    for shape in shapes:
+        near = np.repeat(np.repeat(shape.sdf(centres) <= radius, block, 0), block, 1)[:nx, :ny]
+        near &= ~out
+        out[near] = shape.sdf(pts[near]) <= 0
+    return out
+
+
 # ---------------------------------------------------------------------------------------------
 # Rasters.
 
@@ -231,6 +251,8 @@ def distance_to_false(mask: np.ndarray) -> np.ndarray:
     try:
         import edt
     except ImportError:
+        from scipy import ndimage
+
         return ndimage.distance_transform_edt(mask)
     return edt.edt(np.ascontiguousarray(mask), black_border=False, parallel=1).astype(np.float64)
 
@@ -268,7 +290,8 @@ def sample_raster(raster: np.ndarray, origin: tuple[float, float], resolution: f
                   outside: float | None = None) -> np.ndarray:
     """Bilinear samples of a cell-centred raster ``[ix, iy]`` at ``points`` (..., 2).
 
-    Points beyond the outermost cell centres take the nearest value, or ``outside`` when given.  Only the
+    Points beyond the outermost cell centres take the nearest value, or ``outside`` when given; a NaN point gives
+    NaN.  Only the
     block of cells the points touch is read, so the cost follows the points, not the raster's size.
     """
     pts = np.asarray(points, float)
@@ -283,12 +306,22 @@ def sample_raster(raster: np.ndarray, origin: tuple[float, float], resolution: f
     else:
         lo, hi = np.zeros(2, int), np.minimum(n, 1)
     block = np.asarray(raster[lo[0]:hi[0], lo[1]:hi[1]], float)
-    local = coords - lo[:, None]
-    out = ndimage.map_coordinates(block, local, order=1, mode="nearest").reshape(pts.shape[:-1])
+    out = np.where(finite, _bilinear(block, np.where(finite, coords - lo[:, None], 0.0)), np.nan)
+    out = out.reshape(pts.shape[:-1])
     if outside is not None:
         beyond = np.any((ij < -0.5) | (ij > n - 0.5), axis=-1)
         out = np.where(beyond, outside, out)
     return out
+
+
+def _bilinear(block: np.ndarray, ij: np.ndarray) -> np.ndarray:
+    """Bilinear samples of ``block`` at fractional indices ``ij`` (2, N) inside [0, shape − 1]."""
+    n = np.asarray(block.shape)[:, None]
+    i0 = np.minimum(np.floor(ij).astype(int), np.maximum(n - 2, 0))
+    i1 = np.minimum(i0 + 1, n - 1)
+    t = ij - i0
+    return ((1 - t[0]) * ((1 - t[1]) * block[i0[0], i0[1]] + t[1] * block[i0[0], i1[1]])
+            + t[0] * ((1 - t[1]) * block[i1[0], i0[1]] + t[1] * block[i1[0], i1[1]]))
 
 
 def sample_walled(sd: np.ndarray, origin: tuple[float, float], resolution: float, points: np.ndarray) -> np.ndarray:

@@ -2,9 +2,9 @@
 
 A scan gives surface points, not occupied areas: each return is taken as the near edge of a small disk behind it
 (:func:`behind`), so that the obstacles have a signed distance, and the operator's V0 takes the minimum of it and
-the static map's signed distance on the window's nodes only (a KD-tree over the disks' centres: the cost follows
-the window and the scan, not the map).  Obstacles that move (people) are grown by a further margin
-(docs/design.md, "Moving obstacles").
+the static map's signed distance on the window's nodes only (a KD-tree over the disks' centres, pykdtree's: the
+cost follows the window and the scan, not the map; scipy's would load ~35 MB of scipy into the node).  Obstacles
+that move (people) are grown by a further margin (docs/design.md, "Moving obstacles").
 Poses are (x, y, yaw) in SI units; points are ``(..., 2)`` arrays of x, y.
 """
 
@@ -13,7 +13,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from scipy.spatial import cKDTree
+from pykdtree.kdtree import KDTree
 
 Pose2 = tuple[float, float, float]
 
@@ -54,12 +54,13 @@ class PointObstacles:
     margin: float = 0.0
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "_tree", cKDTree(self.points) if len(self.points) else None)
+        points = np.ascontiguousarray(self.points, np.float64).reshape(-1, 2)
+        object.__setattr__(self, "_tree", KDTree(points) if len(points) else None)
 
     def distance(self, points: np.ndarray) -> np.ndarray:
         """Signed distance from each of ``points`` (..., 2) to the nearest disk; +inf without disks."""
         p = np.asarray(points, float)
         if self._tree is None:
             return np.full(p.shape[:-1], np.inf)
-        d, _ = self._tree.query(p.reshape(-1, 2))
+        d, _ = self._tree.query(np.ascontiguousarray(p.reshape(-1, 2)))
         return d.reshape(p.shape[:-1]) - self.margin

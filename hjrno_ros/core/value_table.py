@@ -1,4 +1,4 @@
-"""A value table V on a grid, evaluated with its gradient at arbitrary states (numpy, no JAX).
+"""A value table V on a grid, evaluated with its gradient at arbitrary states (numpy alone).
 
 Used wherever ground truth drives a decision: rollouts that validate the solver, the ground-truth
 safety filter, evaluation.  Multilinear interpolation of V and of its central-difference
@@ -25,25 +25,17 @@ class ValueTable:
             raise ValueError("value table has NaN/Inf entries")
         self.grid = grid
         self.values = values
-        self._vg: Any = None  # scipy's interpolator of V and ∇V, made on first use
+        self._vg: np.ndarray | None = None  # [..., (V, ∂V/∂x0, ...)], made on first use
 
     def prepare_gradient(self) -> None:
-        """Make the interpolator of [V, ∂V/∂x0, ...] now (milliseconds for a window's table), not at the first
-        gradient lookup: one interpolator over the stacked components (linear interpolation is per component), so a
-        lookup of V and ∇V costs one call, not two.  scipy.interpolate (~14 MB) is imported only here: the node's
-        least-restrictive filter reads values only."""
+        """Make the central-difference gradient now (a window's table: milliseconds), not at the first gradient
+        lookup: V and its partials stacked in one array, interpolated together (linear interpolation is per
+        component), so a lookup of V and ∇V costs one call."""
         if self._vg is not None:
             return
-        from scipy import interpolate
-
         grid, values = self.grid, self.values
-        grads = np.stack(
-            [self._unpad(np.gradient(self._padded(values, i), grid.spacings[i], axis=i), i) for i in range(grid.ndim)],
-            axis=-1,
-        )
-        stacked = np.concatenate([values[..., None], grads], -1)
-        self._vg = interpolate.RegularGridInterpolator(self._axes_closed(), self._close(stacked), bounds_error=False,
-                                                       fill_value=None)
+        grads = [self._unpad(np.gradient(self._padded(values, i), h, axis=i), i) for i, h in enumerate(grid.spacings)]
+        self._vg = np.stack([values, *grads], -1)
 
     def _padded(self, a: np.ndarray, axis: int) -> np.ndarray:
         return np.concatenate([a.take([-1], axis), a, a.take([0], axis)], axis) if axis in self.grid.periodic else a
@@ -51,30 +43,6 @@ class ValueTable:
     def _unpad(self, a: np.ndarray, axis: int) -> np.ndarray:
         n = self.grid.shape[axis]
         return a.take(range(1, n + 1), axis) if axis in self.grid.periodic else a
-
-    def _close(self, a: np.ndarray) -> np.ndarray:
-        """Append the first slice after the last along periodic axes, so interpolation wraps."""
-        for ax in self.grid.periodic:
-            a = np.concatenate([a, a.take([0], ax)], ax)
-        return a
-
-    def _axes_closed(self) -> tuple[np.ndarray, ...]:
-        axes = []
-        for i, ax in enumerate(self.grid.axes()):
-            axes.append(np.append(ax, self.grid.hi[i]) if i in self.grid.periodic else ax)
-        return tuple(axes)
-
-    def _query(self, states: np.ndarray) -> np.ndarray:
-        s = np.array(states, np.float64, copy=True)
-        if s.shape[-1] != self.grid.ndim:
-            raise ValueError(f"states need {self.grid.ndim} components in the last axis, got shape {s.shape}")
-        lo, hi = np.asarray(self.grid.lo), np.asarray(self.grid.hi)
-        for i in range(self.grid.ndim):
-            if i in self.grid.periodic:
-                s[..., i] = lo[i] + (s[..., i] - lo[i]) % (hi[i] - lo[i])
-            else:
-                s[..., i] = np.clip(s[..., i], lo[i], hi[i])
-        return s
 
     def inside(self, states: np.ndarray, axes: tuple[int, ...] | None = None) -> np.ndarray:
         """True where the states lie within the grid's box on the given (default: non-periodic) axes."""
@@ -88,18 +56,22 @@ class ValueTable:
     def value_and_gradient(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """V ``(...)`` and ∇V ``(..., ndim)`` at ``states`` ``(..., ndim)``."""
         self.prepare_gradient()
-        out = self._vg(self._query(states))
+        out = multilinear(self._vg, self.grid, self._coords(states))
         return out[..., 0], out[..., 1:]
 
     def value(self, states: np.ndarray) -> np.ndarray:
         """V ``(...)`` at ``states`` ``(..., ndim)`` (the same interpolation as :meth:`value_and_gradient`'s, without
-        the gradient: the least-restrictive filter reads values only); one state ``(ndim,)`` gives ``(1,)``, as
-        scipy's interpolator does."""
+        the gradient: the least-restrictive filter reads values only)."""
+        return multilinear(self.values, self.grid, self._coords(states))
+
+    def _coords(self, states: np.ndarray) -> np.ndarray:
+        """``states`` ``(..., ndim)`` as one coordinate array per axis; one state ``(ndim,)`` counts as ``(1, ndim)``,
+        as in scipy's interpolators."""
         s = np.asarray(states, np.float64)
         s = s[None] if s.ndim == 1 else s
         if s.shape[-1] != self.grid.ndim:
             raise ValueError(f"states need {self.grid.ndim} components in the last axis, got shape {s.shape}")
-        return multilinear(self.values, self.grid, np.moveaxis(s, -1, 0))
+        return np.moveaxis(s, -1, 0)
 
     def gradient(self, states: np.ndarray) -> np.ndarray:
         return self.value_and_gradient(states)[1]
@@ -144,10 +116,11 @@ class ReversingTable:
 
 
 def multilinear(values: np.ndarray, grid: GridSpec, coords: Any, prefix: tuple[Any, ...] = ()) -> np.ndarray:
-    """Multilinear interpolation of ``values[prefix..., i0, i1, ...]`` on ``grid`` at ``coords`` (one array per grid
-    axis, broadcast together; ``prefix``: index arrays of leading axes that are not interpolated, e.g. a table per
-    level): periodic axes wrap, the others clamp to the grid's box, a non-finite coordinate gives NaN.  Values only,
-    a few numpy operations per corner: cheaper than scipy's interpolator for the few states of a command."""
+    """Multilinear interpolation of ``values[prefix..., i0, i1, ..., channels...]`` on ``grid`` at ``coords`` (one
+    array per grid axis, broadcast together; ``prefix``: index arrays of leading axes that are not interpolated, e.g.
+    a table per level; trailing axes are channels, interpolated alike): periodic axes wrap, the others clamp to the
+    grid's box, a non-finite coordinate gives NaN.  A few numpy operations per corner: cheaper than scipy's
+    interpolator for the few states of a command."""
     coords = np.broadcast_arrays(*(np.asarray(c, np.float64) for c in coords), *prefix)
     prefix, coords = coords[len(coords) - len(prefix):], coords[:len(coords) - len(prefix)]
     shape = coords[0].shape
@@ -162,8 +135,10 @@ def multilinear(values: np.ndarray, grid: GridSpec, coords: Any, prefix: tuple[A
     bits = (np.arange(1 << len(coords))[:, None] >> np.arange(len(coords))) & 1  # (corners, ndim)
     index = np.where(bits[:, :, None] == 1, i1, i0)  # (corners, ndim, N)
     weight = np.where(bits[:, :, None] == 1, t, 1.0 - t).prod(1)  # (corners, N)
-    corners = values[(*(np.reshape(p, -1) for p in prefix), *np.moveaxis(index, 1, 0))]
-    return np.where(bad, np.nan, (weight * corners).sum(0).reshape(shape))
+    corners = values[(*(np.reshape(p, -1) for p in prefix), *np.moveaxis(index, 1, 0))]  # (corners, N, channels...)
+    channels = corners.shape[2:]
+    out = (weight.reshape(weight.shape + (1,) * len(channels)) * corners).sum(0).reshape(shape + channels)
+    return np.where(bad.reshape(shape + (1,) * len(channels)), np.nan, out)
 
 
 def value_table(grid: GridSpec, values: np.ndarray) -> ValueTable | ReversingTable:

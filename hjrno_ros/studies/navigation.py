@@ -113,7 +113,7 @@ def floor_plan_map(seed: int) -> NavMap:
     origin = (-PLAN_HALF, -PLAN_HALF)
     centres = origin[0] + (np.arange(n) + 0.5) * RESOLUTION
     xy = np.stack(np.meshgrid(centres, centres, indexing="ij"), -1) - robot
-    obstacles = geometry.union_sdf(scenario.shapes, xy) <= 0
+    obstacles = geometry.union_inside(scenario.shapes, xy)
     return NavMap(f"plan{seed}", walled(obstacles), origin, RESOLUTION)
 
 

@@ -75,6 +75,31 @@ def test_the_fast_distance_transform_is_scipys():
     assert not geo.distance_to_false(np.zeros((5, 5), bool)).any()
 
 
+def test_raster_samples_are_scipys_bilinear_nearest_beyond_and_nan_for_nan_points():
+    from scipy import ndimage
+
+    rng = np.random.default_rng(5)
+    for shape in ((40, 30), (1, 6), (6, 1), (1, 1)):
+        raster = rng.normal(size=shape)
+        points = rng.uniform(-1.0, 3.0, (400, 2))
+        ij = np.clip(((points - (0.2, -0.1)) / 0.07 - 0.5).T, 0.0, np.array(shape)[:, None] - 1.0)
+        want = ndimage.map_coordinates(raster, ij, order=1, mode="nearest")
+        np.testing.assert_allclose(geo.sample_raster(raster, (0.2, -0.1), 0.07, points), want, atol=1e-12)
+    out = geo.sample_raster(np.ones((5, 5)), (0.0, 0.0), 0.1, np.array([[np.nan, 0.2], [0.2, 0.2]]))
+    assert np.isnan(out[0]) and out[1] == 1.0
+
+
+def test_union_inside_is_the_union_distance_sign_on_a_lattice():
+    shapes = [geo.Disk((0.3, 0.2), 0.4), geo.Box((-1.0, 1.0), (0.8, 0.05), 0.3),
+              geo.Ellipse((1.2, -0.9), (0.5, 0.2), 1.0), geo.Polygon(((-1.5, -1.5), (-0.5, -1.2), (-1.1, -0.4))),
+              geo.ClosedSpline(((0.8, 0.8), (1.6, 0.9), (1.5, 1.6), (0.9, 1.4)))]
+    x, y = np.linspace(-2.0, 2.0, 123), np.linspace(-2.0, 2.0, 77)  # neither a multiple of the block
+    points = np.stack(np.meshgrid(x, y, indexing="ij"), -1)
+    inside = geo.union_inside(shapes, points, block=8)
+    assert inside.shape == (123, 77) and inside.sum() > 500
+    np.testing.assert_array_equal(inside, geo.union_sdf(shapes, points) <= 0)
+
+
 def test_unknown_cells_and_thresholds():
     occ = np.zeros((20, 20), np.int16)
     occ[5, 5] = -1

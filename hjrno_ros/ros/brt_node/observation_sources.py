@@ -31,7 +31,6 @@ from typing import Any
 
 import numpy as np
 from nav_msgs.msg import OccupancyGrid
-from scipy.spatial import cKDTree
 from sensor_msgs.msg import LaserScan, PointCloud2, PointField
 
 from hjrno_ros.core.point_obstacles import PointObstacles, Pose2, behind, scan_points, transform
@@ -280,10 +279,9 @@ def tracked(points: np.ndarray, agents: Agents | None, now: float) -> np.ndarray
     out = np.zeros(len(points), bool)
     if agents is None or len(agents) == 0 or len(points) == 0:
         return out
-    near = cKDTree(points).query_ball_point(agents.predicted(now - agents.received), agents.radii + AGENT_MATCH)
-    hits = [i for group in near for i in group]
-    out[hits] = True
-    return out
+    centres = agents.predicted(now - agents.received)  # a few agents: every pair
+    gaps = np.linalg.norm(points[None, :, :] - centres[:, None, :], axis=-1)
+    return (gaps <= (agents.radii + AGENT_MATCH)[:, None]).any(0)
 
 
 def live_obstacles(sources: list[ObservationSource], now: float, map_frame: str,

@@ -65,6 +65,13 @@ def test_scan_returns_become_points_in_the_map_frame():
     assert np.all(np.isinf(PointObstacles(np.zeros((0, 2))).distance(np.zeros((3, 2)))))
 
 
+def test_the_distance_to_many_returns_is_the_exact_nearest_one():
+    rng = np.random.default_rng(2)
+    returns, nodes = rng.uniform(-5.0, 5.0, (1500, 2)), rng.uniform(-4.0, 4.0, (32, 32, 2))
+    exact = np.linalg.norm(nodes[:, :, None, :] - returns, axis=-1).min(-1) - 0.1
+    np.testing.assert_allclose(PointObstacles(returns, margin=0.1).distance(nodes), exact, atol=1e-12)
+
+
 def test_malformed_sources_and_scans_are_refused_with_one_line():
     assert "type" in SourceConfig.build("scan", {"type": "sonar"})
     assert "sensor_pose" in SourceConfig.build("scan", {"sensor_pose": [0.0, math.nan, 0.0]})
