@@ -18,7 +18,7 @@ demo: setup
 	$(VENV)/bin/hjrno demo --out out/demo
 
 test: setup
-	$(PY) -m pytest -q test
+	$(PY) -m pytest -q -n 2 --dist loadgroup test  # real-time tests on one worker: test/conftest.py
 
 lint: setup
 	$(VENV)/bin/ruff check .

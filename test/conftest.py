@@ -12,6 +12,22 @@ from hjrno_ros.learning.training import TrainConfig, train
 
 SMALL = {"width": 8, "modes": 4, "n_layers": 2}
 pytest_plugins = ["dds_driver"]  # the DDS tests' fixtures (model_stem, ros) for every folder
+TEST_ROOT = Path(__file__).parent
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "real_time: runs ROS 2 over DDS, a node process or a simulator in real time")
+
+
+def pytest_collection_modifyitems(config, items):
+    """For ``pytest -n 2 --dist loadgroup`` (``make test``): the real-time tests (marked ``real_time``, and all of
+    test/ros) run one after the other on one worker, so that no two of them share a ROS domain (each takes its own
+    from its process id) or wait for the CPU behind another's node; every other file is a unit that the other
+    worker takes (its module fixtures are made once)."""
+    for item in items:
+        path = Path(item.fspath).relative_to(TEST_ROOT)
+        real_time = item.get_closest_marker("real_time") is not None or path.parts[0] == "ros"
+        item.add_marker(pytest.mark.xdist_group("real_time" if real_time else str(path)))
 
 
 @pytest.fixture(scope="session")

@@ -30,6 +30,8 @@ ROOT = Path(__file__).resolve().parents[1]
 DOMAIN = 51 + os.getpid() % 50  # apart from test_brt_node's 1..50; <= 101 avoids ephemeral ports
 PY = f"python{sys.version_info.major}.{sys.version_info.minor}"
 
+pytestmark = pytest.mark.real_time  # runs a node over DDS in real time (test/conftest.py)
+
 
 def model_for_startup(tmp: Path) -> Path:
     """The bundled model, else an untrained tiny FNO (start-up only needs a loadable car model)."""

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hjrno_ros.core.dynamics import DiffDriveParams
 from hjrno_ros.core.grids import GridSpec
 from hjrno_ros.core.least_restrictive import Certificate
 from hjrno_ros.core.value_table import multilinear
@@ -123,6 +124,14 @@ class AgentTable:
         clamped to the box, θ wrapped; less the margin."""
         coords = (relative[..., 0], relative[..., 1], v, relative[..., 3])
         return multilinear(self.values, self.grid, coords, (level,)) - self.margin
+
+
+def robot_options(robot: DiffDriveParams, radius: float) -> str:
+    """The ``hjrno agents`` options that solve the tables for a robot of these limits and footprint
+    radius ``radius`` m (RADIUS where it is not positive: the node's footprint_radius was left at 0)."""
+    size = f"{radius:g}" if radius > 0 else "RADIUS"
+    return (f"--v-min {robot.v_min:g} --v-max {robot.v_max:g} --a-max {robot.a_max:g} --omega-max "
+            f"{robot.omega_max:g} --tracking-error {robot.tracking_error:g} --radius {size}")
 
 
 def read_agent_table(stem: str | Path) -> AgentTable:

@@ -50,13 +50,18 @@ DEFAULT_SPEEDS = "0,0.25,0.5,0.75,1,1.25,1.5"  # m/s
 DEFAULT_DEVIATION = 0.3  # m/s
 DEFAULT_CAP = 1.0  # m
 DEFAULT_MARGIN = 0.4  # m added to the box half-width, and kept between the unsafe set and the extrapolated edge
-CELLS = {"jackal": 0.2, "turtlebot3": 0.1}  # m: default x-y cell per robot (the TurtleBot3 stops in 0.22 s)
 EDGE_CELLS = 2  # x-y cells at the box edge that hj extrapolates
 
 
 def stop_time(robot: DiffDriveParams) -> float:
     """T = max(|v_min|, v_max)/a_max, s: the longest stop, which turns the speed term of l into metres."""
     return max(abs(robot.v_min), robot.v_max) / robot.a_max
+
+
+def default_cell(robot: DiffDriveParams) -> float:
+    """m: the x-y cell for a robot: 0.2 where it brakes over 0.5 m or more from its top speed (a Jackal), else 0.1
+    (a TurtleBot3 stops within 3 cm: its table needs the finer cell near contact)."""
+    return 0.2 if max(abs(robot.v_min), robot.v_max) ** 2 / (2 * robot.a_max) >= 0.5 else 0.1
 
 
 def level_spacing(speeds: Sequence[float]) -> float:
@@ -89,12 +94,13 @@ def box_half_width(robot: DiffDriveParams, radius: float, speeds: Sequence[float
 def agent_grid(robot: DiffDriveParams, half_width: float, cell: float, v_nodes: int = 11,
                theta_nodes: int = 16) -> GridSpec:
     """(x, y, v, θ) over [−h, h]² (h rounded up to whole cells: a node at x = y = 0), v over [v_min, v_max] with a
-    node at v = 0 (odd count; a reversing robot needs v_min = −v_max), θ periodic over [−π, π)."""
+    node at v = 0 (a reversing robot's ``v_nodes`` must put one there), θ periodic over [−π, π)."""
     if not (cell > 0 and half_width > 0):
         raise ValueError(f"need cell > 0 and half_width > 0, got {cell}, {half_width}")
-    if robot.v_min != 0 and not (v_nodes >= 3 and v_nodes % 2 == 1 and math.isclose(-robot.v_min, robot.v_max)):
-        raise ValueError(f"a node at v = 0 needs an odd node count and v_min = -v_max, got {v_nodes} nodes over "
-                         f"[{robot.v_min}, {robot.v_max}]")
+    if robot.v_min != 0 and not (v_nodes >= 3 and _zero_on_node(robot, v_nodes)):
+        fits = [n for n in range(3, 42) if _zero_on_node(robot, n)][:4]
+        raise ValueError(f"{v_nodes} speed nodes over [{robot.v_min:g}, {robot.v_max:g}] m/s have none at v = 0"
+                         + (f"; --v-nodes {' or '.join(map(str, fits))} would" if fits else ""))
     half = math.ceil(half_width / cell - 1e-9)
     h = half * cell
     grid = GridSpec((-h, -h, robot.v_min, -math.pi), (h, h, robot.v_max, math.pi),
@@ -102,6 +108,12 @@ def agent_grid(robot: DiffDriveParams, half_width: float, cell: float, v_nodes: 
     if grid.spacings[2] / 2 <= V_TOL:
         raise ValueError(f"speed spacing {grid.spacings[2]:.3f} m/s: only the node v = 0 may lie below v_tol = {V_TOL}")
     return grid
+
+
+def _zero_on_node(robot: DiffDriveParams, v_nodes: int) -> bool:
+    """Whether ``v_nodes`` evenly spaced speeds over [v_min, v_max] put one at v = 0."""
+    k = -robot.v_min * (v_nodes - 1) / (robot.v_max - robot.v_min)
+    return abs(k - round(k)) < 1e-6
 
 
 def agent_target(grid: GridSpec, radius: float, cap: float) -> np.ndarray:
@@ -267,10 +279,10 @@ def parse_speeds(text: str) -> tuple[float, ...]:
 
 
 def add_arguments(p) -> None:
-    """``hjrno agents``' arguments (an argparse parser)."""
-    p.add_argument("--robot", required=True, choices=sorted(CELLS))
-    p.add_argument("--out", default=None, help="stem of the table (default: models/agents_ROBOT)")
-    p.add_argument("--cell", type=float, default=None, help="x-y cell, m (default: jackal 0.2, turtlebot3 0.1)")
+    """``hjrno agents``' solver arguments (an argparse parser); the robot's own come from the caller."""
+    p.add_argument("--out", default=None, help="stem of the table (default: models/agents_ROBOT for a named robot)")
+    p.add_argument("--cell", type=float, default=None, help="x-y cell, m (default: 0.2 for a robot that brakes over "
+                   "0.5 m or more, else 0.1)")
     p.add_argument("--speeds", default=DEFAULT_SPEEDS, help=f"agent speed levels, m/s (default {DEFAULT_SPEEDS})")
     p.add_argument("--deviation", type=float, default=DEFAULT_DEVIATION, help="agent's deviation from its measured "
                    f"velocity, m/s (default {DEFAULT_DEVIATION})")
@@ -283,23 +295,24 @@ def add_arguments(p) -> None:
                    "rounded towards -inf)")
 
 
-def reproduce_command(args, out: str, cell: float) -> str:
-    """The exact ``hjrno agents`` command line that rebuilds this table."""
-    return (f"hjrno agents --robot {args.robot} --out {out} --cell {cell:g} --speeds {args.speeds} --deviation "
+def reproduce_command(args, robot: str, out: str, cell: float) -> str:
+    """The exact ``hjrno agents`` command line that rebuilds this table (``robot``: its options)."""
+    return (f"hjrno agents {robot} --out {out} --cell {cell:g} --speeds {args.speeds} --deviation "
             f"{args.deviation:g} --agent-radius {args.agent_radius:g} --cap {args.cap:g} --margin {args.margin:g} "
             f"--v-nodes {args.v_nodes} --theta-nodes {args.theta_nodes} --dtype {args.dtype}")
 
 
-def main(args, robot: DiffDriveParams, robot_radius: float) -> int:
-    """``hjrno agents``: solve, write and summarise the tables of ``robot`` (``args.robot`` names it, radius
-    ``robot_radius`` m); exit 3 if a level did not converge."""
+def main(args, robot: DiffDriveParams, robot_radius: float, name: str, options: str) -> int:
+    """``hjrno agents``: solve, write and summarise the tables of ``robot`` (footprint radius ``robot_radius`` m;
+    ``name`` in messages, ``options`` its command-line options in the card's command); exit 3 if a level did not
+    converge."""
     speeds = parse_speeds(args.speeds)
-    cell = args.cell if args.cell is not None else CELLS[args.robot]
+    cell = args.cell if args.cell is not None else default_cell(robot)
     radius = robot_radius + args.agent_radius
     h = box_half_width(robot, radius, speeds, args.deviation, args.cap, args.margin)
     grid = agent_grid(robot, h, cell, args.v_nodes, args.theta_nodes)
-    out = args.out or f"models/agents_{args.robot}"
-    print(f"agents {args.robot}: R = {radius:.3f} m, T = {stop_time(robot):.2f} s, box ±{grid.hi[0]:.2f} m, grid "
+    out = args.out
+    print(f"agents {name}: R = {radius:.3f} m, T = {stop_time(robot):.2f} s, box ±{grid.hi[0]:.2f} m, grid "
           f"{'x'.join(map(str, grid.shape))} x {len(speeds)} levels, deviation solved "
           f"{solved_deviation(args.deviation, speeds):.3f} m/s", flush=True)
 
@@ -314,7 +327,7 @@ def main(args, robot: DiffDriveParams, robot_radius: float) -> int:
     error = float(np.max(values - stored.astype(np.float32)))
     card = make_card(robot=robot, robot_radius=robot_radius, agent_radius=args.agent_radius, speeds=speeds,
                      deviation=args.deviation, cap=args.cap, grid=grid, report=report,
-                     reproduce=reproduce_command(args, out, cell), storage_error=error)
+                     reproduce=reproduce_command(args, options, out, cell), storage_error=error)
     tensor, card_path = write_agent_table(out, stored, card)
     print(format_table(report))
     short = [f"{lv['speed']:g}" for lv in report["levels"] if not lv["cap_reached_inside"]]

@@ -72,6 +72,7 @@ def test_a_follower_that_senses_replans_around_what_it_sees_once_a_second(plan_m
     assert blind.sensed is None and blind(start, 0.0) is not None  # without sensing: the plan made at the start
 
 
+@pytest.mark.real_time
 def test_nav_bench_rows_lockstep_and_over_dds(tmp_path):
     """One short careless episode per filter on a held-out plan with the Jackal: the benchmark's rows, the learned
     filter in process and brt_node over DDS never collide, and the node never fails closed."""

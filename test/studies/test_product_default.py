@@ -23,6 +23,8 @@ DEFAULT = ROOT / "models" / "default"
 TURTLEBOT3 = {"omega_max": 2.84, "v_max": 0.22, "v_min": -0.22, "a_max": 1.0, "robot_model": "diff_drive"}
 S = 0.22 / 2.84  # its length scale v_max/ω_max, m per model unit (the test map's 20 m become 1.55 m)
 
+pytestmark = pytest.mark.real_time  # runs a node over DDS in real time (test/conftest.py)
+
 
 def test_the_default_is_a_diff_drive_table_fno_with_its_coverage_metrics_and_calibration():
     card = ModelCard.load(DEFAULT)

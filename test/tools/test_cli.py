@@ -80,3 +80,32 @@ def test_train_refuses_a_missing_base_model_before_writing(ci_data, tmp_path):
                 str(tmp_path / "none"), "--out", str(tmp_path / "m"), "--quiet")
     assert out.returncode == 2 and "none.json not found" in out.stderr and "Traceback" not in out.stderr
     assert not list(tmp_path.glob("m*"))
+
+
+def test_agents_solves_for_a_robot_given_by_its_limits_and_the_node_takes_it(tmp_path):
+    """``hjrno agents`` with the node's own limits (no named robot): a table the node with those limits loads, whose
+    card rebuilds it; a node with other limits refuses it with the command for its own; missing limits: one line."""
+    from hjrno_ros.core.dynamics import DiffDriveParams
+    from hjrno_ros.core.tracked_agents import read_agent_table
+    from hjrno_ros.ros.brt_node.config import NodeConfig
+    from hjrno_ros.ros.brt_node.value_sources import load_agent_table
+
+    stem = tmp_path / "agents_mine"
+    limits = ["--v-min", "-0.5", "--v-max", "1", "--a-max", "1", "--omega-max", "2", "--radius", "0.25"]
+    small = ["--speeds", "0,0.5", "--deviation", "0.1", "--cell", "0.3", "--v-nodes", "7", "--theta-nodes", "8",
+             "--cap", "0.5", "--margin", "0.3"]  # reverses at half its top speed: 7 nodes put one at v = 0
+    out = hjrno("agents", *limits, *small, "--out", str(stem))
+    assert out.returncode == 0, out.stdout + out.stderr
+    card = json.loads(stem.with_suffix(".json").read_text())
+    assert card["robot"]["v_min"] == -0.5 and card["robot"]["radius"] == 0.25 and card["radius"] == pytest.approx(0.45)
+    assert card["reproduce"].startswith("hjrno agents --v-min -0.5 --v-max 1 --a-max 1 --omega-max 2 "
+                                        "--tracking-error 0.1 --radius 0.25 --out")
+    mine = DiffDriveParams(a_max=1.0, omega_max=2.0, v_min=-0.5, v_max=1.0)
+    table = load_agent_table(NodeConfig(agent_table=str(stem), footprint_radius=0.25), mine)
+    assert table is not None and table.robot == read_agent_table(stem).robot
+    faster = DiffDriveParams(a_max=1.0, omega_max=2.0, v_min=-0.5, v_max=1.2)
+    with pytest.raises(ValueError, match=r"hjrno agents --v-min -0.5 --v-max 1.2 .* --radius 0.25 --out STEM"):
+        load_agent_table(NodeConfig(agent_table=str(stem), footprint_radius=0.25), faster)
+    missing = hjrno("agents", "--v-max", "0.5", "--out", str(tmp_path / "other"))
+    assert missing.returncode == 2 and "missing --v-min --a-max --omega-max --radius" in missing.stdout
+    assert not (tmp_path / "other.json").exists()

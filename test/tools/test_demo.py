@@ -5,7 +5,11 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 HJRNO = [sys.executable, "-m", "hjrno_ros.cli"]
+
+pytestmark = pytest.mark.real_time  # runs a node over DDS in real time (test/conftest.py)
 
 
 def test_demo_keeps_the_robot_safe_and_reports(tmp_path):

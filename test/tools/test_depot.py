@@ -26,7 +26,8 @@ ROOT = Path(__file__).resolve().parents[2]
 DEPOT = ROOT.parent / "shared" / "maps" / "depot.yaml"  # CI has ../shared beside the clone
 EPISODES, SECONDS = 12, 6.0
 
-pytestmark = pytest.mark.skipif(not DEPOT.is_file(), reason="../shared/maps/depot.yaml not beside the checkout")
+pytestmark = [pytest.mark.skipif(not DEPOT.is_file(), reason="../shared/maps/depot.yaml not beside the checkout"),
+              pytest.mark.real_time]  # the depot over DDS in real time (test/conftest.py)
 
 
 def test_episode_plan_starts_in_free_space_and_aims_at_trouble():

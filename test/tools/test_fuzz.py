@@ -657,6 +657,7 @@ def test_model_card_mutations_load_or_raise_one_line_naming_a_field():
 DDS_SECONDS = 40.0
 
 
+@pytest.mark.real_time
 def test_dds_fuzz_node_survives_and_never_publishes_beyond_the_limits():
     """brt_node in its own process (bundled model), driven over DDS for DDS_SECONDS with a random mix of valid and
     hostile maps, odometry, poses, commands and parameter sets: it stays alive, keeps publishing status, every

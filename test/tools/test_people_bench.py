@@ -12,6 +12,7 @@ pytest.importorskip("irsim")
 from hjrno_ros.tools import people_bench  # noqa: E402
 
 
+@pytest.mark.real_time
 def test_people_bench_rows_and_no_moving_contact_with_tracked_agents(tmp_path):
     rc = people_bench.run(tmp_path, episodes=1, seconds=12.0, filters=("stop_zone", "brt_node+agents"),
                           progress=lambda m: None)

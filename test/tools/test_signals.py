@@ -10,6 +10,8 @@ import pytest
 
 pytest.importorskip("rclpy")
 
+pytestmark = pytest.mark.real_time  # runs a node over DDS in real time (test/conftest.py)
+
 
 def test_every_signal_at_every_moment_exits_cleanly(tmp_path):
     from hjrno_ros.tools import signal_bench

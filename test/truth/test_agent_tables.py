@@ -54,8 +54,12 @@ def test_speed_levels_and_grid_are_checked():
         with pytest.raises(ValueError):
             at.level_spacing(bad)
     assert 0.0 in GRID.axis(2) and GRID.shape == (21, 21, 5, 8) and GRID.periodic == (3,)
-    with pytest.raises(ValueError, match="odd"):
+    with pytest.raises(ValueError, match="none at v = 0; --v-nodes 3 or 5 or 7 or 9 would"):
         at.agent_grid(ROBOT, 3.0, 0.3, v_nodes=4)
+    slower_back = dataclasses.replace(ROBOT, v_min=-0.25, v_max=0.5)  # reverses at half its top speed
+    assert 0.0 in at.agent_grid(slower_back, 3.0, 0.3, v_nodes=7).axis(2)
+    with pytest.raises(ValueError, match="--v-nodes 4 or 7 or 10 or 13 would"):
+        at.agent_grid(slower_back, 3.0, 0.3, v_nodes=11)
 
 
 def test_tables_are_converged_capped_below_the_target_and_safe_at_rest(solved):

@@ -12,7 +12,7 @@ import hjrno_ros
 from hjrno_ros.core.model_card import ModelCard, paths
 from hjrno_ros.core.operator_values import OperatorValues
 from hjrno_ros.core.scaled_values import ScaledValueFunction, covered_scaling, filter_params
-from hjrno_ros.core.tracked_agents import AgentTable, read_agent_table
+from hjrno_ros.core.tracked_agents import AgentTable, read_agent_table, robot_options
 from hjrno_ros.core.value_source import ValueSource
 from hjrno_ros.ros.brt_node.config import NodeConfig
 from hjrno_ros.ros.brt_node.robot import robot_params
@@ -71,7 +71,7 @@ def load_agent_table(cfg: NodeConfig, robot: Any) -> AgentTable | None:
     if any(not isinstance(theirs[k], int | float) or abs(theirs[k] - ours[k]) > 1e-6 * max(1.0, abs(ours[k]))
            for k in AGENT_LIMITS):
         raise ValueError(f"agent table {stem} was solved for a robot with {theirs}, the node's has {ours}: make one "
-                         "for this robot with `hjrno agents`")
+                         f"for this robot with `hjrno agents {robot_options(robot, cfg.footprint_radius)} --out STEM`")
     return table
 
 

@@ -18,7 +18,6 @@ from dds_driver import DOMAIN, ROOT, wait_for  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 
-from hjrno_ros.core import safety_filter  # noqa: E402
 from hjrno_ros.core.model_card import ModelCard  # noqa: E402
 from hjrno_ros.ros.brt_node.node import BrtNode  # noqa: E402
 from hjrno_ros.ros.harness import scene_driver  # noqa: E402
@@ -137,21 +136,3 @@ def test_scene_over_dds(scene_node, name):
         assert np.all(outputs == 0.0)  # the nominal stop passed as it is: nothing added
     if robot == "diff_drive":
         assert status["counts"]["stops"] == stops  # the robot's own motion never fails closed
-
-
-def test_hjrno_simulate_runs_the_scenes(tmp_path):
-    """``hjrno simulate --scenes product``: the scenes without ROS (the numpy filter on solved tables) into
-    scenes.md; the car passes every scene in every filter mode, the differential drive in the node's
-    least-restrictive mode (the older modes cannot leave the margin at rest)."""
-    from hjrno_ros import cli
-
-    assert cli.main(["simulate", "--scenes", "product", "--out", str(tmp_path)]) == 0
-    car, diff = (tmp_path / "scenes.md").read_text().split("# Product scenes")[1:]
-
-    def rows(text: str) -> list[str]:
-        return [line for line in text.splitlines() if line.startswith("| ") and not line.startswith(("| scene",
-                                                                                                      "| ---"))]
-
-    assert len(rows(car)) == len(CAR_SCENES) * len(safety_filter.MODES) and all("| none |" in r for r in rows(car))
-    judged = [r for r in rows(diff) if "| least_restrictive |" in r]
-    assert len(judged) == len(DIFF_DRIVE_SCENES) and all("| none |" in r for r in judged), judged
