@@ -32,7 +32,8 @@ def main(argv: list[str] | None = None) -> int:
     global _starting
     signal.signal(signal.SIGINT, _interrupt)
     signal.signal(signal.SIGTERM, _interrupt)
-    os.environ.setdefault("OMP_NUM_THREADS", "1")  # the KD-tree's OpenMP: no pool of spinning threads beside commands
+    # pykdtree's OpenMP and numpy's OpenBLAS read it: one thread each, no pool spinning beside the command path
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
