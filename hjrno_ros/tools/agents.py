@@ -59,6 +59,5 @@ def run(args: argparse.Namespace) -> int:
             print("hjrno agents: give --out STEM for a robot other than a named one")
             return 2
         args.out = f"models/agents_{name}"
-    named = name == args.robot and args.robot is not None
-    options = f"--robot {name}" if named else robot_options(robot, radius)
+    options = f"--robot {name}" if name == args.robot else robot_options(robot, radius)
     return agent_tables.main(args, robot, radius, name, options)
