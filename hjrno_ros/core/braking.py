@@ -13,6 +13,11 @@ It needs no model and no calibration: exact where the learned value is least cer
 walls) and the filter's fallback wherever the learned table does not reach (docs/design.md, "Safety filter").
 It holds for robots that rest safely (d₀ = 0); with d₀ > 0 the disturbance moves a stopped robot forever and
 there is no such bound (−∞).
+
+Obstacles that may approach at up to u m/s (people a laser sees, :func:`braking_value`'s ``moving``) come u·|v|/a_max
+nearer while the robot brakes to rest, so their clearance along the path is lowered by that much: a margin that
+shrinks with the robot's speed, where the value table's V0 must take the top speed's (docs/design.md, "Moving
+obstacles").  Contact after the robot is at rest is outside the avoid set (passive safety).
 """
 
 from __future__ import annotations
@@ -27,8 +32,10 @@ Clearance = Callable[[np.ndarray], np.ndarray]  # x-y points (..., 2) -> l (...)
 SAMPLES = 5  # points along the braking path (both ends included)
 
 
-def braking_value(params: RobotParams, clearance: Clearance, states: np.ndarray, samples: int = SAMPLES) -> np.ndarray:
-    """The braking bound at ``states`` ``(..., 4)`` (x, y, v, θ), m: a lower bound of V for any map ``clearance``."""
+def braking_value(params: RobotParams, clearance: Clearance, states: np.ndarray, samples: int = SAMPLES,
+                  moving: tuple[Clearance, float] | None = None) -> np.ndarray:
+    """The braking bound at ``states`` ``(..., 4)`` (x, y, v, θ), m: a lower bound of V for any map ``clearance``;
+    ``moving``: the clearance of obstacles that may approach, and their speed u (m/s)."""
     states = np.asarray(states, float)
     if params.d0 > 0:
         return np.full(states.shape[:-1], -np.inf)
@@ -37,5 +44,9 @@ def braking_value(params: RobotParams, clearance: Clearance, states: np.ndarray,
     direction = np.sign(v)[..., None] * np.stack([np.cos(theta), np.sin(theta)], -1)
     sigma = np.linspace(0.0, 1.0, samples)
     points = states[..., None, :2] + (length[..., None] * sigma)[..., None] * direction[..., None, :]
-    least = clearance(points).min(-1) - length / (2 * (samples - 1))
+    least = clearance(points).min(-1)
+    if moving is not None:
+        approach, speed = moving
+        least = np.minimum(least, approach(points).min(-1) - speed * np.abs(v) / params.a_max)
+    least = least - length / (2 * (samples - 1))
     return least - params.tracking_error * length

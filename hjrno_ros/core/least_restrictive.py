@@ -50,13 +50,15 @@ def at_time(cert: Certificate, seconds: float) -> Certificate:
     return shift(seconds) if shift is not None else cert
 
 
-def certificate(params: RobotParams, clearance: Clearance, table=None, epsilon: float = 0.0) -> Certificate:
+def certificate(params: RobotParams, clearance: Clearance, table=None, epsilon: float = 0.0,
+                moving: tuple[Clearance, float] | None = None) -> Certificate:
     """W(s) = max(V̂(s) − ε, braking bound) where ``table`` (``value``, ``inside``) covers s, else the braking
-    bound alone: a state the learned table does not reach is judged by the bound that needs no model."""
+    bound alone: a state the learned table does not reach is judged by the bound that needs no model.
+    ``moving``: the clearance of obstacles that may approach and their speed (:func:`braking_value`)."""
 
     def w(states: np.ndarray) -> np.ndarray:
         states = np.asarray(states, float)
-        bound = braking_value(params, clearance, states)
+        bound = braking_value(params, clearance, states, moving=moving)
         if table is None:
             return bound
         grid = table.grid
@@ -67,6 +69,8 @@ def certificate(params: RobotParams, clearance: Clearance, table=None, epsilon: 
         learned = np.where(table.inside(states), table.value(states) - epsilon, -np.inf)
         return np.maximum(learned, bound)
 
+    if moving is not None:  # what stands still: kept by the rule while W is at or below 0 (filter_least_restrictive)
+        w.floor = lambda states: braking_value(params, clearance, np.asarray(states, float))
     return w
 
 
@@ -101,13 +105,6 @@ def _after(params: RobotParams, settings: FilterSettings, states: np.ndarray,
     s = np.broadcast_to(states[:, None], (*twists.shape[:2], 4))
     nxt = step(params, s, twists, settings.dt)
     return nxt, disturbance_bound(params, 0.5 * (s[..., 2] + nxt[..., 2])) * settings.dt
-
-
-def _next_w(params: RobotParams, settings: FilterSettings, cert: Certificate, states: np.ndarray,
-            twists: np.ndarray) -> np.ndarray:
-    """W after each twist ``(n, k, 2)`` from ``states`` ``(n, 4)``, less the disturbance's reach over dt."""
-    nxt, drift = _after(params, settings, states, twists)
-    return cert(nxt) - drift
 
 
 def _grid(params: RobotParams, states: np.ndarray, nominal: np.ndarray, dt: float) -> np.ndarray:
@@ -168,23 +165,48 @@ def filter_least_restrictive(params: RobotParams, settings: FilterSettings, cert
     w_here, w_now, w_next = _three(cert, here, states, nxt[:, 0], delay, settings.dt)
     need = required(settings, w_now - lag)
     blind = ~np.isfinite(w_now)  # no table and no bound where the command acts (a car, d₀ > 0): fail closed
+    floor = getattr(cert, "floor", None)
+    floor_need = _floor_need(settings, floor, states, w_now - lag, lag)
     changed = blind | ~(w_next - drift[:, 0] - lag >= need)
+    if floor is not None:
+        changed |= ~(floor(nxt[:, 0]) - drift[:, 0] - lag >= floor_need)
     out = nominal.copy()
     search = changed & ~blind  # only the commands the nominal fails are searched (most pass: a cheap common case)
     if search.any():
         out[search] = _closest_admissible(params, settings, at_time(cert, delay + settings.dt), states[search],
-                                          nominal[search], lag[search], need[search])
+                                          nominal[search], lag[search], need[search],
+                                          None if floor is None else floor_need[search])
     out[blind] = 0.0
     return out, changed, np.where(blind, -np.inf, w_here)
 
 
+def _floor_need(settings: FilterSettings, floor: Certificate | None, states: np.ndarray, w: np.ndarray,
+                lag: np.ndarray) -> np.ndarray | None:
+    """The least the certificate's ``floor`` (what stands still) may have at the next state: b(floor) where W ``w``
+    is at or below 0, −∞ elsewhere.  Below 0, W is the least of its parts and a command that does not lower it may
+    still run into another part (backing from a person within the motion margin into a wall): the rule holds for
+    what stands still as well."""
+    if floor is None:
+        return None
+    return np.where(w <= 0, required(settings, floor(states) - lag), -np.inf)
+
+
 def _closest_admissible(params: RobotParams, settings: FilterSettings, cert: Certificate, states: np.ndarray,
-                        nominal: np.ndarray, lag: np.ndarray, need: np.ndarray) -> np.ndarray:
+                        nominal: np.ndarray, lag: np.ndarray, need: np.ndarray,
+                        floor_need: np.ndarray | None = None) -> np.ndarray:
     """For inadmissible nominal commands: the admissible command nearest each on the grid, moved along the
     segment toward its nominal as far as stays admissible; where none is admissible, the highest W."""
+
+    def admissible(twists: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        nxt, drift = _after(params, settings, states, twists)
+        w = cert(nxt) - drift - lag[:, None]
+        ok = w >= need[:, None]
+        if floor_need is not None:
+            ok &= cert.floor(nxt) - drift - lag[:, None] >= floor_need[:, None]
+        return w, ok
+
     tries = _grid(params, states, nominal, settings.dt)
-    w = _next_w(params, settings, cert, states, tries) - lag[:, None]
-    ok = w >= need[:, None]
+    w, ok = admissible(tries)
     distance = _distance(params, tries, nominal[:, None])
     safest = w >= w.max(1, keepdims=True) - 1e-9  # none admissible: the highest W, nearest the nominal among ties
     best = np.where(ok.any(1), np.where(ok, distance, np.inf).argmin(1), np.where(safest, distance, np.inf).argmin(1))
@@ -193,10 +215,11 @@ def _closest_admissible(params: RobotParams, settings: FilterSettings, cert: Cer
     refine = ok.any(1)
     if refine.any():  # the admissible point nearest the nominal on the segment nominal -> best
         t = np.linspace(0.0, 1.0, SEGMENT_POINTS + 1)[1:]
-        seg = nominal[refine, None] + t[:, None] * (out[refine] - nominal[refine])[:, None]
-        seg_ok = _next_w(params, settings, cert, states[refine], seg) - lag[refine, None] >= need[refine, None]
+        seg = np.broadcast_to(nominal[:, None], (len(states), len(t), 2)).copy()
+        seg[refine] = nominal[refine, None] + t[:, None] * (out[refine] - nominal[refine])[:, None]
+        seg_ok = admissible(seg)[1][refine]
         first = seg_ok.argmax(1)  # t = 1 (the best grid command) is admissible
-        out[refine] = seg[np.arange(refine.sum()), first]
+        out[refine] = seg[refine][np.arange(refine.sum()), first]
     return out
 
 

@@ -177,6 +177,12 @@ class AgentCertificate:
         self.static, self.table, self.agents, self.footprint = static, table, agents, footprint
         self.age, self.elapsed = age, elapsed
 
+    @property
+    def floor(self) -> Certificate:
+        """What the agents do not lower: the static certificate, which the filter holds to its rule while W is at
+        or below 0 (core/least_restrictive.py)."""
+        return self.static
+
     def at(self, seconds: float) -> AgentCertificate:
         """This certificate for states ``seconds`` after now (the agents moved on meanwhile)."""
         return AgentCertificate(self.static, self.table, self.agents, self.footprint, self.age, seconds)

@@ -226,7 +226,7 @@ def add_arguments(p) -> None:
     p.add_argument("--agent-table", default=None, help="people bench: the tracked agents' tables (models/agents_ROBOT)")
     for name in ("robots", "maps", "drivers", "filters"):  # nav_bench.ROBOTS, MAPS, DRIVERS, FILTERS
         p.add_argument(f"--{name}", default=None, help=f"nav bench: comma-separated {name} (default: all); people "
-                       "bench: its filters and drivers, and one robot")
+                       "bench: its filters and drivers, one robot and one map")
 
 
 def dispatch_args(args) -> int:
@@ -255,6 +255,7 @@ def dispatch(what: str, out: Path, quick: bool = False, only: str | None = None,
                                 drivers=tuple(drivers.split(",")) if drivers else people_bench.BLIND,
                                 obstacle_speed_max=1.0 if obstacle_speed is None else obstacle_speed,
                                 robot_name=((select or {}).get("robots") or "jackal").split(",")[0],
+                                map_name=((select or {}).get("maps") or people_bench.DEFAULT_MAP).split(",")[0],
                                 filters=tuple(chosen.split(",")) if chosen else people_bench.FILTERS,
                                 agent_table=agent_table)
     if what == "soak":

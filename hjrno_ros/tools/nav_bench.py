@@ -129,6 +129,15 @@ def summarize(results: list[nav.EpisodeResult], reference: list[nav.EpisodeResul
     }
 
 
+def nav_map_named(name: str) -> nav.NavMap:
+    """``depot`` (Nav2's map, :data:`DEPOT`) or ``planSEED`` (a floor plan), or a ValueError naming both."""
+    if name == "depot":
+        return nav.map_file_map(DEPOT)
+    if name.startswith("plan") and name[4:].isdigit():
+        return nav.floor_plan_map(int(name[4:]))
+    raise ValueError(f"maps are depot or planSEED (e.g. plan{PLAN_SEEDS[0]}), got {name!r}")
+
+
 def run(out: Path, episodes: int = 3, robots: tuple[str, ...] = tuple(nav.ROBOTS), maps: tuple[str, ...] = (),
         drivers: tuple[str, ...] = DRIVERS, filters: tuple[str, ...] = FILTERS, model: str | None = None,
         seed: int = 0, seconds: float | None = None, progress=print) -> int:
@@ -136,8 +145,7 @@ def run(out: Path, episodes: int = 3, robots: tuple[str, ...] = tuple(nav.ROBOTS
     :data:`DURATION`."""
     model = model or str(ROOT / "models" / "default")
     maps = maps or (*(f"plan{s}" for s in PLAN_SEEDS), "depot")
-    loaded = {name: nav.map_file_map(DEPOT) if name == "depot" else nav.floor_plan_map(int(name[4:]))
-              for name in maps}
+    loaded = {name: nav_map_named(name) for name in maps}
     sds = {name: m.sd for name, m in loaded.items()}
     rows, cache, started = [], {}, time.perf_counter()
     for robot_name in robots:

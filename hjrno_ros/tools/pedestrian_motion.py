@@ -4,6 +4,8 @@ must assume (docs/design.md, "Tracked agents").
 For every pedestrian and step t of the people benchmark's episodes (the Jackal's follower, unfiltered, lockstep),
 the position error of the constant-velocity prediction over s ≤ τ seconds, divided by s: the velocity deviation
 that the prediction needs, ‖p(t + s) − p(t) − u(t)·s‖ / s.  Printed per horizon τ: max, 99th and 95th percentile.
+Then the walkers' accelerations, ‖u(t + step) − u(t)‖ / step while they walk: the bound a model of a person with
+bounded acceleration (the velocity as a state) would need to cover them.
 
     python -m hjrno_ros.tools.pedestrian_motion [--episodes 2]
 """
@@ -27,6 +29,14 @@ def prediction_deviation(positions: np.ndarray, velocities: np.ndarray, step: fl
         error = positions[n:] - positions[:-n] - velocities[:-n] * (n * step)
         out.append(np.linalg.norm(error, axis=-1).ravel() / (n * step))
     return np.concatenate(out)
+
+
+def accelerations(velocities: np.ndarray, step: float, moving: float = 0.02) -> np.ndarray:
+    """‖u(t + step) − u(t)‖ / step, m/s², over velocities ``(T, k, 2)``, for the steps at which the walker moves
+    (faster than ``moving`` m/s at either end), flat."""
+    speed = np.linalg.norm(velocities, axis=-1)
+    walking = (speed[1:] > moving) | (speed[:-1] > moving)
+    return (np.linalg.norm(np.diff(velocities, axis=0), axis=-1) / step)[walking]
 
 
 def tracks(episodes: int, robot_name: str = "jackal", map_seed: int = 1000001) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -69,6 +79,10 @@ def main(argv: list[str] | None = None) -> int:
     for horizon in HORIZONS:
         d = np.concatenate([prediction_deviation(pos, vel, STEP, horizon) for pos, vel in runs])
         print(f"| {horizon:g} | {d.max():.2f} | {np.percentile(d, 99):.2f} | {np.percentile(d, 95):.2f} |")
+    a = np.concatenate([accelerations(vel, STEP) for _, vel in runs])
+    print("\n| walking steps | max m/s² | p99.9 | p99 | p95 | share above 2 m/s² |\n" + "| --- " * 6 + "|")
+    print(f"| {a.size} | {a.max():.1f} | {np.percentile(a, 99.9):.1f} | {np.percentile(a, 99):.1f} | "
+          f"{np.percentile(a, 95):.1f} | {np.mean(a > 2):.3f} |")
     return 0
 
 

@@ -39,6 +39,7 @@ SCAN_EVERY = 2  # steps of STEP s between LaserScans: 10 Hz
 SEED_OFFSET = 7  # the random pedestrians' seed, after the episodes'
 TURN_SHORT = 1.0  # m: the walkers on the robot's route turn this far short of its goals and start
 WALKER_CLEARANCE = 0.4  # m: a turning point's least distance to a wall
+DEFAULT_MAP = "plan1000001"  # a held-out floor plan; ``depot`` is Nav2's map
 AGENTS_TOPIC = "tracked_agents"  # brt_node+agents: IR-SIM's pedestrians as a perfect tracker's PointCloud2
 
 
@@ -84,19 +85,20 @@ DRIVERS = ("follower", "careless", "replanning")  # replanning: the follower wit
 BLIND = ("follower", "careless")  # the default: drivers blind to people
 
 
-def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str = "plan1000001",
+def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str = DEFAULT_MAP,
         seconds: float | None = None, model: str | None = None, obstacle_speed_max: float = 1.0,
         filters: tuple[str, ...] = FILTERS, agent_table: str | None = None, progress=print,
         drivers: tuple[str, ...] = BLIND) -> int:
     """The benchmark; returns 1 when brt_node drove into something.  Rows merge into ``out``/people.json by
-    (driver, filter, obstacle_speed_max, agent_deviation), into people.json for the Jackal and people_<robot>.json
-    for another robot.  ``seconds`` per episode: the navigation benchmark's for the robot.  ``agent_table``: the
-    tracked agents' tables (default: the bundled ``agents_<robot>``).  ``drivers``: the drivers blind to people by
-    default; ``replanning`` is the follower with the LiDAR's returns marked in its planner's map, planning again
-    every second (Nav2's planner on a global costmap with an obstacle layer)."""
+    (driver, filter, obstacle_speed_max, agent_deviation), one file per robot and map (:func:`results_stem`).
+    ``map_name``: ``depot`` or ``planSEED`` (``nav_bench.nav_map_named``).  ``seconds`` per episode: the
+    navigation benchmark's for the robot.  ``agent_table``: the tracked agents' tables (default: the bundled
+    ``agents_<robot>``).  ``drivers``: the drivers blind to people by default; ``replanning`` is the follower with
+    the LiDAR's returns marked in its planner's map, planning again every second (Nav2's planner on a global
+    costmap with an obstacle layer)."""
     from hjrno_ros.core.tracked_agents import read_agent_table
     from hjrno_ros.studies.irsim_world import DiffDriveBase, IrSimWorld
-    from hjrno_ros.tools.nav_bench import DURATION, ROOT
+    from hjrno_ros.tools.nav_bench import DURATION, ROOT, nav_map_named
 
     unknown = set(filters) - set(FILTERS)
     if unknown:
@@ -108,7 +110,7 @@ def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str 
     agent_table = agent_table or str(ROOT / "models" / f"agents_{robot_name}")
     deviation = read_agent_table(agent_table).deviation if "brt_node+agents" in filters else None
     robot = nav.ROBOTS[robot_name]
-    nav_map = nav.floor_plan_map(int(map_name[4:]))
+    nav_map = nav_map_named(map_name)
     sd = nav_map.sd
     eps = nav.draw_episodes(nav_map, robot, episodes, 3, 0)
     base = DiffDriveBase(robot.radius, robot.v_max, robot.v_min, robot.omega_max, robot.a_max, robot.alpha_max)
@@ -144,7 +146,7 @@ def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str 
             for driver_kind in drivers for name in filters]
     write(Path(out), rows, {"episodes_per_case": episodes, "robot": robot_name, "map": map_name, "seconds": seconds,
                             "model": str(model), "wall_s": round(time.perf_counter() - started)})
-    progress(f"wrote {Path(out) / ('people' if robot_name == 'jackal' else 'people_' + robot_name)}.md")
+    progress(f"wrote {Path(out) / results_stem(robot_name, map_name)}.md")
     return int(any(r["collisions_moving"] for r in rows if r["filter"].startswith("brt_node")))
 
 
@@ -238,11 +240,17 @@ def summarize(driver: str, name: str, with_people: list[tuple], without: list[tu
     }
 
 
+def results_stem(robot_name: str, map_name: str) -> str:
+    """people, people_<robot>, people_<map> or people_<robot>_<map>: the Jackal and the default plan are implied."""
+    return "_".join(["people", *([robot_name] if robot_name != "jackal" else []),
+                     *([map_name] if map_name != DEFAULT_MAP else [])])
+
+
 def write(out: Path, rows: list[dict], run: dict) -> None:
-    """Merge ``rows`` into people.json (people_<robot>.json but for the Jackal; a rerun replaces its own rows) and
+    """Merge ``rows`` into the robot's and map's people.json (:func:`results_stem`; a rerun replaces its own rows) and
     render the .md beside it."""
     out.mkdir(parents=True, exist_ok=True)
-    stem = "people" if run["robot"] == "jackal" else f"people_{run['robot']}"
+    stem = results_stem(run["robot"], run["map"])
     key = lambda r: (r["driver"], r["filter"], r["obstacle_speed_max"], r.get("agent_deviation"))  # noqa: E731
     path = out / f"{stem}.json"
     old = json.loads(path.read_text())["rows"] if path.is_file() else []

@@ -68,6 +68,43 @@ def test_braking_bound_is_below_the_solved_value(table):
     assert np.all(braking_value(DiffDriveParams(d0=0.1), _clearance, s) == -np.inf)  # no bound with drift at rest
 
 
+def _least_gap_while_braking(state: np.ndarray, person: np.ndarray, speed: float, dt: float = 1e-3) -> float:
+    """Simulated: the robot brakes at a_max from ``state`` while a point ``person`` walks straight at it at ``speed``;
+    the least distance between them before the robot is at rest."""
+    x, v, heading = state[:2].copy(), state[2], np.array([math.cos(state[3]), math.sin(state[3])])
+    least = np.linalg.norm(person - x)
+    while abs(v) > 0:
+        v_next = math.copysign(max(abs(v) - ROBOT.a_max * dt, 0.0), v)
+        x += 0.5 * (v + v_next) * dt * heading
+        towards = x - person
+        person = person + speed * dt * towards / max(np.linalg.norm(towards), 1e-12)
+        v = v_next
+        least = min(least, np.linalg.norm(person - x))
+    return float(least)
+
+
+def test_braking_bound_against_an_approaching_person_lower_bounds_the_gap_while_braking():
+    """A person who may walk at u m/s toward the robot comes u·|v|/a_max nearer while it brakes: with that term the
+    bound stays below the least gap of a simulated stop against a person walking straight at the robot; without
+    it (the person taken as still) it is above that gap, and at rest it is the clearance itself."""
+    rng = np.random.default_rng(1)
+    free = lambda pts: np.full(np.shape(pts)[:-1], np.inf)  # noqa: E731 - no map obstacle
+    speed, worse = 1.0, 0
+    for _ in range(200):
+        state = np.array([0.0, 0.0, rng.uniform(-1, 1), rng.uniform(-math.pi, math.pi)])
+        person = rng.uniform(-3, 3, 2)
+        clearance = lambda pts, p=person: np.linalg.norm(np.asarray(pts) - p, axis=-1)  # noqa: E731
+        bound = braking_value(ROBOT, free, state[None], moving=(clearance, speed))[0]
+        gap = _least_gap_while_braking(state, person, speed)
+        assert bound <= gap + 2e-3  # the simulation's own step: measured 0.9 mm at worst
+        worse += braking_value(ROBOT, clearance, state[None])[0] > gap + 2e-3
+        at_rest = state.copy()
+        at_rest[2] = 0.0
+        at_rest_bound = braking_value(ROBOT, free, at_rest[None], moving=(clearance, speed))[0]
+        assert at_rest_bound == pytest.approx(np.linalg.norm(person))  # the robot is at the origin
+    assert worse >= 190  # measured: all 200 (every state moves)
+
+
 def _decide(cert, state, linear, angular):
     return decide(ROBOT, SETTINGS, cert, np.asarray(state, float), linear, angular)
 
@@ -177,3 +214,42 @@ def test_a_state_no_certificate_covers_stops_the_robot():
     out, changed, _ = filter_least_restrictive(car, SETTINGS, cert, np.array([[0.0, 0.0, 0.6, 0.0]]),
                                                np.array([[1.0, 0.0]]), np.array([[1.0, 0.0]]), 0.2)
     assert changed[0] and np.array_equal(out[0], (0.0, 0.0))  # by the time it acts, the speed has left the table
+
+
+def _back_away(cert, steps: int = 60) -> tuple[float, float]:
+    """The robot at rest at the origin facing +x reverses at full speed through the filter: (least x, last x)."""
+    state, least = np.array([0.0, 0.0, 0.0, 0.0]), 0.0
+    for _ in range(steps):
+        d = decide(ROBOT, SETTINGS, cert, state, -1.0, 0.0)
+        state = step(ROBOT, state[None], np.array([[d.linear, d.angular]]), SETTINGS.dt)[0]
+        least = min(least, state[0])
+    return least, state[0]
+
+
+def test_backing_away_from_a_person_stops_short_of_the_wall_behind():
+    """W is the least of its parts: the static map's, and a person's (as tracked agents add theirs).  With the
+    person 0.5 m ahead W is below 0; reversing away raises the person's part, so W alone lets the robot run
+    backwards into the wall 0.6 m behind (the wall's part binds only once the robot is too fast to stop).  What
+    stands still (the certificate's floor) keeps the rule too: the robot backs away and stops before the wall."""
+    static = certificate(ROBOT, lambda pts: np.asarray(pts)[..., 0] + 0.6)  # a wall behind the robot, x = -0.6
+
+    def cert(states: np.ndarray) -> np.ndarray:
+        person = np.linalg.norm(np.asarray(states)[..., :2] - [0.5, 0.0], axis=-1) - 0.85  # within its margin
+        return np.minimum(static(states), person)
+
+    assert cert(np.zeros((1, 4)))[0] < 0
+    reached_the_wall = _back_away(cert)[0] <= -0.6
+    cert.floor = static
+    least, last = _back_away(cert)
+    assert -0.6 < least and last < -0.2  # it backed away from the person, and stopped before the wall
+    assert reached_the_wall  # without the floor
+
+
+def test_speed_near_a_person_within_the_motion_margin_is_held_by_the_braking_bound():
+    """Within the motion margin of an untracked person the braking bound falls with any speed (the person comes
+    u·|v|/a_max nearer while the robot stops): the robot stays at rest, as passive safety asks."""
+    wall = lambda pts: np.asarray(pts)[..., 0] + 0.6  # noqa: E731
+    person = lambda pts: np.linalg.norm(np.asarray(pts) - [0.5, 0.0], axis=-1) - 0.85  # noqa: E731
+    cert = certificate(ROBOT, wall, None, 0.0, moving=(person, 1.0))
+    assert cert(np.zeros((1, 4)))[0] < 0 and hasattr(cert, "floor")
+    assert _back_away(cert) == (0.0, 0.0)

@@ -99,3 +99,13 @@ def test_prediction_deviation_is_zero_for_steady_walkers_and_the_jump_for_a_turn
     u_back = np.where(t[:, None, None] < 0.5, u, -u)
     d = prediction_deviation(back, u_back, 0.05, 0.5)
     assert 1.5 < d.max() <= 2.0  # a turn back: up to the whole 2 m/s change
+
+
+def test_accelerations_count_walking_steps_only_and_see_a_turn_back_at_once():
+    from hjrno_ros.tools.pedestrian_motion import accelerations
+
+    u = np.zeros((6, 2, 2))
+    u[1:3, 0] = [1.0, 0.0]  # walker 0 starts at once, walks a step, turns back at once
+    u[3:, 0] = [-1.0, 0.0]  # walker 1 stands throughout: none of its steps count
+    a = accelerations(u, 0.05)
+    assert a.size == 5 and sorted(a.round(6)) == [0.0, 0.0, 0.0, 20.0, 40.0]

@@ -469,13 +469,11 @@ class BrtNode(LifecycleNode):
 
     def certificate(self, data: dict[str, Any], epsilon: float) -> least_restrictive.Certificate:
         """W of the checked map and value table: the learned value less ε where the table holds the state, and the
-        braking bound on the map's signed distance (less the footprint and the map's own margin) everywhere
-        (core/least_restrictive.py); with tracked agents, the least of that and each agent's relative value
-        (core/tracked_agents.py)."""
+        braking bound on the map's and live obstacles' clearance everywhere (ValueWorker.braking_clearances); with
+        tracked agents, the least of that and each agent's relative value (core/tracked_agents.py)."""
         m, val = data["map"], data["value"]
-        static = least_restrictive.certificate(self.vf.params,
-                                               lambda points: self.values.clearance(m, points, val.obstacles),
-                                               val.table, epsilon)
+        clearance, moving = self.values.braking_clearances(m, val.obstacles)
+        static = least_restrictive.certificate(self.vf.params, clearance, val.table, epsilon, moving)
         return with_agents(static, self.agent_table, data.get("agents"), self.config.footprint_radius,
                            data["state"].received)
 

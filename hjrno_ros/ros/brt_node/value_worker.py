@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from hjrno_ros.core import geometry
+from hjrno_ros.core.braking import Clearance
 from hjrno_ros.core.grids import wrap_angle
 from hjrno_ros.core.point_obstacles import PointObstacles
 from hjrno_ros.core.value_source import ValueSource
@@ -176,14 +177,38 @@ class ValueWorker:
             sd = np.minimum(sd, obstacle.distance(points))
         return sd - self.inflation(m.resolution, model_grid=False)
 
+    def stop_time(self) -> float:
+        """s: the robot's longest stop, from its top speed at a_max."""
+        p = self.vf.params
+        return max(abs(p.v_min), abs(p.v_max)) / p.a_max
+
     def moving_margin(self) -> float:
-        """m: how far a live obstacle that is not on the static map may come while the robot stops:
-        ``obstacle_speed_max`` times (the robot's time to stop from its top speed, ``command_latency`` and the
-        largest source timeout, the oldest data the node filters with); docs/design.md, "Moving obstacles"."""
-        cfg, p = self.cfg(), self.vf.params
-        stop = max(abs(p.v_min), abs(p.v_max)) / p.a_max
+        """m: how far a live obstacle that is not on the static map may come before the robot, at its top speed,
+        has stopped: ``obstacle_speed_max`` times (the time to stop, ``command_latency`` and the largest source
+        timeout, the oldest data the node filters with); docs/design.md, "Moving obstacles"."""
+        return self.age_margin() + self.cfg().obstacle_speed_max * self.stop_time()
+
+    def age_margin(self) -> float:
+        """m: the share of :meth:`moving_margin` that does not depend on the robot's speed (the data's age and the
+        command's latency), which the live obstacles are grown by; the stop's share is added where they are
+        used: the top speed's in V0, the state's own in the braking bound (:meth:`braking_clearances`)."""
+        cfg = self.cfg()
         timeout = max((s.config.timeout for s in self.sources), default=0.0)
-        return cfg.obstacle_speed_max * (stop + cfg.command_latency + timeout)
+        return cfg.obstacle_speed_max * (cfg.command_latency + timeout)
+
+    def braking_clearances(self, m: MapData, obstacles: tuple[PointObstacles, ...]
+                           ) -> tuple[Clearance, tuple[Clearance, float] | None]:
+        """The braking bound's clearances: of the map and the obstacles that stand still, and of those that may
+        approach, with their speed (None without such obstacles); core/braking.py."""
+        still = tuple(o for o in obstacles if not o.approach)
+        moving = tuple(o for o in obstacles if o.approach)
+
+        def approaching(points: np.ndarray) -> np.ndarray:
+            least = np.min([o.distance(points) for o in moving], axis=0)
+            return least - self.inflation(m.resolution, model_grid=False)
+
+        static = lambda points: self.clearance(m, points, still)  # noqa: E731
+        return static, ((approaching, max(o.approach for o in moving)) if moving else None)
 
     def live_obstacles(self, m: MapData, state: RobotState, now: float
                        ) -> tuple[tuple[PointObstacles, ...], tuple[int, ...], str]:
@@ -197,7 +222,7 @@ class ValueWorker:
             return (), (), reason
         obstacles, versions, reason = live_obstacles(
             self.sources, now, m.frame_id, lambda stamp: self.states.pose_at(stamp, state),
-            lambda pts: map_distance(m, pts), self.moving_margin(), agents)
+            lambda pts: map_distance(m, pts), self.age_margin(), agents, self.cfg().obstacle_speed_max)
         return tuple(obstacles), versions, reason
 
     def v0(self, m: MapData, points: np.ndarray) -> np.ndarray:
@@ -236,8 +261,10 @@ class ValueWorker:
                 return
             points = self.vf.window_points(center)
             v0 = self.v0(m, points)
-            for obstacle in obstacles:  # the live sources: on the window's nodes only
-                v0 = np.minimum(v0, (obstacle.distance(points) - self.inflation(m.resolution)).astype(np.float32))
+            stop = self.stop_time()
+            for obstacle in obstacles:  # the live sources, approaching ones for the top speed's stop: window only
+                d = obstacle.distance(points) - obstacle.approach * stop - self.inflation(m.resolution)
+                v0 = np.minimum(v0, d.astype(np.float32))
             table = self.vf.local_table(v0, center, v, state.theta, reach=self.reach)
         else:
             table = refined.table

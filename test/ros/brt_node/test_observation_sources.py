@@ -199,7 +199,9 @@ def test_a_scan_source_stops_the_robot_before_what_only_the_laser_sees(model_ste
 
 def test_people_off_the_map_are_kept_at_the_motion_margin(model_stem):
     """The same person 2 m ahead: with obstacle_speed_max 1 m/s (margin 1 × (1 s to stop + 0.05 + 0.5) = 1.55 m)
-    the command towards them is changed; the static map's wall 9 m away is not grown."""
+    the command towards them is changed; the static map's wall 9 m away is not grown.  The stop's share of the
+    margin follows the robot's speed (the braking bound): at rest, 1.3 m from the person, the robot may start
+    towards them slowly (the top speed's margin alone held it still)."""
     with driver_and_node(model_stem, DOMAIN + 1, observation_sources=["scan"], obstacle_speed_max=1.0,
                          **DIFF_DRIVE) as (driver, node):
         scanner = Scanner(driver, person_ahead(2.0))
@@ -211,6 +213,10 @@ def test_people_off_the_map_are_kept_at_the_motion_margin(model_stem):
             assert node.values.moving_margin() == pytest.approx(1.55)
             assert wait_for(lambda: forward(driver, 1.0).linear < 1.0, 5.0)
             assert occupancy()[150, 100] == 100  # the wall the margin leaves alone
+            scanner.ranges, driver.v = person_ahead(1.3), 0.0
+            assert wait_for(lambda: 0.0 < forward(driver, 0.2).linear, 10.0)
+            driver.v = 0.5
+            assert wait_for(lambda: forward(driver, 0.5).linear < 0.5, 5.0)  # 0.5 m/s needs 0.55 + 0.5 + 0.125 m more
         finally:
             scanner.stop()
 
