@@ -223,6 +223,7 @@ def add_arguments(p) -> None:
                    "signals: trials (32)")
     p.add_argument("--scan-rate", type=float, default=0.0, help="node bench: also LaserScans at this rate, Hz")
     p.add_argument("--obstacle-speed", type=float, default=None, help="people bench: obstacle_speed_max (1.0 m/s)")
+    p.add_argument("--scan-timeout", type=float, default=None, help="people bench: the scan source's timeout (0.5 s)")
     p.add_argument("--agent-table", default=None, help="people bench: the tracked agents' tables (models/agents_ROBOT)")
     for name in ("robots", "maps", "drivers", "filters"):  # nav_bench.ROBOTS, MAPS, DRIVERS, FILTERS
         p.add_argument(f"--{name}", default=None, help=f"nav bench: comma-separated {name} (default: all); people "
@@ -233,13 +234,14 @@ def dispatch_args(args) -> int:
     """Run the bench that :func:`add_arguments`' parsed ``args`` name."""
     return dispatch(args.what, Path(args.out), quick=args.quick, only=args.only, model=args.model,
                     episodes=args.episodes, seconds=args.seconds, scan_rate=args.scan_rate,
-                    obstacle_speed=args.obstacle_speed, agent_table=args.agent_table,
+                    obstacle_speed=args.obstacle_speed, agent_table=args.agent_table, scan_timeout=args.scan_timeout,
                     select={k: getattr(args, k) for k in ("robots", "maps", "drivers", "filters")})
 
 
 def dispatch(what: str, out: Path, quick: bool = False, only: str | None = None, model: str | None = None,
              episodes: int | None = None, seconds: float | None = None, select: dict | None = None,
-             scan_rate: float = 0.0, obstacle_speed: float | None = None, agent_table: str | None = None) -> int:
+             scan_rate: float = 0.0, obstacle_speed: float | None = None, agent_table: str | None = None,
+             scan_timeout: float | None = None) -> int:
     """``hjrno bench WHAT``: the depot check, the navigation benchmark and the fuzz soak (each its own module), or
     :func:`run`'s benches.  ``select``: the navigation benchmark's robots, maps, drivers and filters."""
     if what == "nav":
@@ -257,7 +259,7 @@ def dispatch(what: str, out: Path, quick: bool = False, only: str | None = None,
                                 robot_name=((select or {}).get("robots") or "jackal").split(",")[0],
                                 map_name=((select or {}).get("maps") or people_bench.DEFAULT_MAP).split(",")[0],
                                 filters=tuple(chosen.split(",")) if chosen else people_bench.FILTERS,
-                                agent_table=agent_table)
+                                agent_table=agent_table, scan_timeout=scan_timeout or people_bench.SCAN_TIMEOUT)
     if what == "soak":
         from hjrno_ros.tools import soak_bench
 

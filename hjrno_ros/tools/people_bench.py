@@ -41,6 +41,7 @@ TURN_SHORT = 1.0  # m: the walkers on the robot's route turn this far short of i
 WALKER_CLEARANCE = 0.4  # m: a turning point's least distance to a wall
 DEFAULT_MAP = "plan1000001"  # a held-out floor plan; ``depot`` is Nav2's map
 AGENTS_TOPIC = "tracked_agents"  # brt_node+agents: IR-SIM's pedestrians as a perfect tracker's PointCloud2
+SCAN_TIMEOUT = 0.5  # s: the scan source's default timeout
 
 
 def turning_points(a: tuple[float, float], b: tuple[float, float], clearance: Callable[[np.ndarray], np.ndarray],
@@ -87,10 +88,12 @@ BLIND = ("follower", "careless")  # the default: drivers blind to people
 
 def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str = DEFAULT_MAP,
         seconds: float | None = None, model: str | None = None, obstacle_speed_max: float = 1.0,
+        scan_timeout: float = SCAN_TIMEOUT,
         filters: tuple[str, ...] = FILTERS, agent_table: str | None = None, progress=print,
         drivers: tuple[str, ...] = BLIND) -> int:
     """The benchmark; returns 1 when brt_node drove into something.  Rows merge into ``out``/people.json by
-    (driver, filter, obstacle_speed_max, agent_deviation), one file per robot and map (:func:`results_stem`).
+    (driver, filter, obstacle_speed_max, agent_deviation, scan_timeout), one file per robot and map
+    (:func:`results_stem`).  ``scan_timeout``: the scan source's timeout, s, which the motion margin covers.
     ``map_name``: ``depot`` or ``planSEED`` (``nav_bench.nav_map_named``).  ``seconds`` per episode: the
     navigation benchmark's for the robot.  ``agent_table``: the tracked agents' tables (default: the bundled
     ``agents_<robot>``).  ``drivers``: the drivers blind to people by default; ``replanning`` is the follower with
@@ -123,7 +126,8 @@ def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str 
     runs: dict[tuple[str, str, bool], list[tuple]] = {}
     started = time.perf_counter()
     for name in filters:
-        with _filter_runner(name, nav_map, robot, sd, model, obstacle_speed_max, seconds, agent_table) as drive_one:
+        with _filter_runner(name, nav_map, robot, sd, model, obstacle_speed_max, seconds, agent_table,
+                            scan_timeout) as drive_one:
             for driver_kind in drivers:
                 replanning = driver_kind == "replanning"
                 for people in (False, True):
@@ -142,7 +146,8 @@ def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str 
                              f"({time.perf_counter() - t0:.0f} s)")
     rows = [{**summarize(driver_kind, name, runs[(driver_kind, name, True)], runs[(driver_kind, name, False)]),
              "obstacle_speed_max": obstacle_speed_max if name == "brt_node" else None,
-             "agent_deviation": deviation if name == "brt_node+agents" else None}
+             "agent_deviation": deviation if name == "brt_node+agents" else None,
+             "scan_timeout": scan_timeout if name.startswith("brt_node") else None}
             for driver_kind in drivers for name in filters]
     write(Path(out), rows, {"episodes_per_case": episodes, "robot": robot_name, "map": map_name, "seconds": seconds,
                             "model": str(model), "wall_s": round(time.perf_counter() - started)})
@@ -152,7 +157,7 @@ def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str 
 
 @contextlib.contextmanager
 def _filter_runner(name: str, nav_map: nav.NavMap, robot: nav.Robot, sd: np.ndarray, model: str,
-                   obstacle_speed_max: float, seconds: float, agent_table: str):
+                   obstacle_speed_max: float, seconds: float, agent_table: str, scan_timeout: float = SCAN_TIMEOUT):
     """Yields ``drive(world, driver, episode) -> EpisodeResult`` for filter ``name``: lockstep for none and the stop
     zone, brt_node over DDS (one node process for all its episodes) for the others."""
     if not name.startswith("brt_node"):
@@ -166,7 +171,7 @@ def _filter_runner(name: str, nav_map: nav.NavMap, robot: nav.Robot, sd: np.ndar
 
     tracked = name == "brt_node+agents"
     params = {**node_params(robot), "observation_sources": "[scan, people]" if tracked else "[scan]",
-              "obstacle_speed_max": obstacle_speed_max}
+              "obstacle_speed_max": obstacle_speed_max, "scan.timeout": scan_timeout}
     if tracked:
         params |= {"people.type": "agents", "people.topic": AGENTS_TOPIC, "agent_table": agent_table}
     domain = free_domain()
@@ -251,19 +256,23 @@ def write(out: Path, rows: list[dict], run: dict) -> None:
     render the .md beside it."""
     out.mkdir(parents=True, exist_ok=True)
     stem = results_stem(run["robot"], run["map"])
-    key = lambda r: (r["driver"], r["filter"], r["obstacle_speed_max"], r.get("agent_deviation"))  # noqa: E731
+    key = lambda r: (r["driver"], r["filter"], r["obstacle_speed_max"], r.get("agent_deviation"),  # noqa: E731
+                     r["scan_timeout"])
     path = out / f"{stem}.json"
     old = json.loads(path.read_text())["rows"] if path.is_file() else []
+    for r in old:  # rows from before the option ran at the default
+        r.setdefault("scan_timeout", SCAN_TIMEOUT if r["filter"].startswith("brt_node") else None)
     rows = [r for r in old if key(r) not in {key(n) for n in rows}] + rows
     order = lambda r: FILTERS.index(r["filter"]) if r["filter"] in FILTERS else len(FILTERS)  # noqa: E731
     rows.sort(key=lambda r: (DRIVERS.index(r["driver"]), order(r), r["obstacle_speed_max"] or 0.0,
-                             r.get("agent_deviation") or 0.0))
+                             r.get("agent_deviation") or 0.0, -(r["scan_timeout"] or 0.0)))
     report = {"machine": f"{platform.machine()}, Python {platform.python_version()}", "date": time.strftime("%Y-%m-%d"),
               "step_s": STEP, **run, "rows": rows}
     note = (f"`hjrno bench people` on {report['machine']}, {report['date']}: {run['robot']} on {run['map']}, "
             f"{run['episodes_per_case']} episodes per case of {run['seconds']:g} s, 4 social-force pedestrians at "
             "0.5-1.0 m/s (2 on the robot's route against it, turning short of its goals), IR-SIM's LiDAR at 10 Hz as "
-            "brt_node's scan source (obstacle_speed_max per row: the motion margin of returns off the map); "
+            "brt_node's scan source (obstacle_speed_max and scan_timeout per row: the motion margin of returns off "
+            "the map covers that speed over the stop, the latency and the timeout); "
             "brt_node+agents also gets the "
             "pedestrians' true positions and velocities at 10 Hz as a tracked-agents source (relative value tables "
             "solved for agents deviating from their velocity by agent_deviation m/s; their returns keep no margin); "

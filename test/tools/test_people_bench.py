@@ -26,8 +26,14 @@ def test_people_bench_rows_and_no_moving_contact_with_tracked_agents(tmp_path):
         assert tracked["fail_closed_share"] < 0.05  # ready before the episode starts: no stale source on the way
     assert rows[("follower", "brt_node+agents")]["goals_without_people"] >= 1  # the follower gets going
     assert "| brt_node+agents |" in (tmp_path / "people.md").read_text()
+    assert rows[("follower", "brt_node+agents")]["scan_timeout"] == 0.5  # the node's scan source, at its default
+    assert rows[("follower", "stop_zone")]["scan_timeout"] is None  # no node, no scan source
+    assert people_bench.results_stem("turtlebot3", "depot") == "people_turtlebot3_depot"
+    assert people_bench.results_stem("jackal", people_bench.DEFAULT_MAP) == "people"
     with pytest.raises(ValueError, match="filters"):
         people_bench.run(tmp_path, filters=("magic",))
+    with pytest.raises(ValueError, match="depot or planSEED"):
+        people_bench.run(tmp_path, map_name="atlantis")
     with pytest.raises(ValueError, match="drivers"):
         people_bench.run(tmp_path, drivers=("magic",))
 
