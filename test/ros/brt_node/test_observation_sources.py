@@ -213,8 +213,12 @@ def test_people_off_the_map_are_kept_at_the_motion_margin(model_stem):
             assert node.values.moving_margin() == pytest.approx(1.55)
             assert wait_for(lambda: forward(driver, 1.0).linear < 1.0, 5.0)
             assert occupancy()[150, 100] == 100  # the wall the margin leaves alone
-            scanner.ranges, driver.v = person_ahead(1.3), 0.0
-            assert wait_for(lambda: 0.0 < forward(driver, 0.2).linear, 10.0)
+            nearer = person_ahead(1.3)
+            scanner.ranges, driver.v = nearer, 0.0
+            assert wait_for(lambda: driver.status.get("observation_sources", {}).get("scan", {}).get("points")
+                            == int(np.isfinite(nearer).sum()), 10.0)  # the nearer person's scan is the node's
+            time.sleep(1.0)  # and the value table made from it
+            assert all(forward(driver, 0.2).linear > 0.0 for _ in range(5))
             driver.v = 0.5
             assert wait_for(lambda: forward(driver, 0.5).linear < 0.5, 5.0)  # 0.5 m/s needs 0.55 + 0.5 + 0.125 m more
         finally:
