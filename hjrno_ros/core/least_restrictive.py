@@ -168,14 +168,14 @@ def filter_least_restrictive(params: RobotParams, settings: FilterSettings, cert
     floor = getattr(cert, "floor", None)
     floor_need = _floor_need(settings, floor, states, w_now - lag, lag)
     changed = blind | ~(w_next - drift[:, 0] - lag >= need)
-    if floor is not None:
+    if floor_need is not None:
         changed |= ~(floor(nxt[:, 0]) - drift[:, 0] - lag >= floor_need)
     out = nominal.copy()
     search = changed & ~blind  # only the commands the nominal fails are searched (most pass: a cheap common case)
     if search.any():
         out[search] = _closest_admissible(params, settings, at_time(cert, delay + settings.dt), states[search],
                                           nominal[search], lag[search], need[search],
-                                          None if floor is None else floor_need[search])
+                                          None if floor_need is None else floor_need[search])
     out[blind] = 0.0
     return out, changed, np.where(blind, -np.inf, w_here)
 
@@ -183,10 +183,10 @@ def filter_least_restrictive(params: RobotParams, settings: FilterSettings, cert
 def _floor_need(settings: FilterSettings, floor: Certificate | None, states: np.ndarray, w: np.ndarray,
                 lag: np.ndarray) -> np.ndarray | None:
     """The least the certificate's ``floor`` (what stands still) may have at the next state: b(floor) where W ``w``
-    is at or below 0, −∞ elsewhere.  Below 0, W is the least of its parts and a command that does not lower it may
-    still run into another part (backing from a person within the motion margin into a wall): the rule holds for
-    what stands still as well."""
-    if floor is None:
+    is at or below 0, −∞ elsewhere; None without a floor or where W > 0 at every state (the command path's common
+    case).  Below 0, W is the least of its parts and a command that does not lower it may still run into another
+    part (backing from a person within the motion margin into a wall): the rule holds for what stands still too."""
+    if floor is None or not np.any(w <= 0):
         return None
     return np.where(w <= 0, required(settings, floor(states) - lag), -np.inf)
 
