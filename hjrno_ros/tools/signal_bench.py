@@ -73,9 +73,15 @@ def trial(base: Any, lifecycle: Any, domain: int, moment: str, sig: int, rng: ra
 
     from hjrno_ros.tools.node_process import brt_node_process
 
-    def change(transition_id: int) -> bool:
-        answer = base.call(lifecycle, ChangeState.Request(transition=Transition(id=transition_id)), 30.0)
-        return bool(answer is not None and answer.success)
+    answers: list[str] = []  # each transition's answer: "none" (no answer within 30 s), "true" or "false"
+
+    def change(transition_id: int) -> bool:  # a request that reached the last trial's node, still in the graph, is
+        for _ in range(3):                     # lost: ask again
+            answer = base.call(lifecycle, ChangeState.Request(transition=Transition(id=transition_id)), 10.0)
+            answers.append("none" if answer is None else str(bool(answer.success)).lower())
+            if answer is not None:
+                return bool(answer.success)
+        return False
 
     base.log.status, base.log.first_status_at = {}, None
     params = {"autostart": moment not in MANAGED, "observation_sources": "[scan]"}
@@ -93,7 +99,8 @@ def trial(base: Any, lifecycle: Any, domain: int, moment: str, sig: int, rng: ra
             reached = wait(lambda: mapped(proc.pid, "_rclpy_pybind11"), 30.0)
             time.sleep(2.0)  # past the imports: spinning, unconfigured
         elif moment == "inactive":
-            reached = change(Transition.TRANSITION_CONFIGURE)
+            reached = wait(lambda: mapped(proc.pid, "_rclpy_pybind11"), 30.0)
+            reached = reached and change(Transition.TRANSITION_CONFIGURE)
             time.sleep(0.5)
         else:
             reached = wait(lambda: base.log.status.get("state") not in (None, "fail_closed"), 60.0)  # filtering
@@ -117,7 +124,7 @@ def trial(base: Any, lifecycle: Any, domain: int, moment: str, sig: int, rng: ra
     return {"moment": moment, "signal": signal.Signals(sig).name, "reached": reached and alive, "exit": code,
             "exit_s": round(exit_s, 2), "traceback": "Traceback" in log, "extra_lines": len(lines),
             "ok": reached and alive and code == 0 and "Traceback" not in log and len(lines) <= 1,
-            "log": log if code != 0 else ""}
+            "transitions": answers, "log": log if code != 0 or not (reached and alive) else ""}
 
 
 def run(out: Path, signals: int = 32, model: str | None = None, seed: int = 0, progress=print) -> int:
