@@ -73,7 +73,7 @@ def trial(base: Any, lifecycle: Any, domain: int, moment: str, sig: int, rng: ra
 
     from hjrno_ros.tools.node_process import brt_node_process
 
-    answers: list[str] = []  # each transition's answer: "none" (no answer within 30 s), "true" or "false"
+    answers: list[str] = []  # each request's answer: "none" (no answer within 10 s), "true" or "false"
 
     def change(transition_id: int) -> bool:  # a request that reached the last trial's node, still in the graph, is
         for _ in range(3):                     # lost: ask again
