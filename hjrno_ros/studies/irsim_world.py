@@ -31,6 +31,9 @@ What this module relies on in IR-SIM 2.12.0 (read in its source and measured), a
   the step that reaches the wall, up to one step's travel (v * step_time) into it.  The robot then
   stays where it is, and its velocity reads zero from the next step on.  The check also runs once at
   construction, so a start pose in collision reads ``collided`` at once.
+* With ``people_walk_on`` the world runs IR-SIM's ``collision_mode: unobstructed_obstacles``: the robot still stops
+  at a contact (and stays held while anything overlaps it), the pedestrians never stop (they walk on, through
+  the robot, a wall they brush against). In ``stop`` mode a walker that touched anything stood there for good.
 * The 2-D LiDAR scans on every step (its ``scan_time`` is only reported, never used) by casting every
   beam against every segment of the map outline the beams touch.  IR-SIM builds that outline as the
   union of one float box per occupied cell, centre +- half a cell; neighbouring boxes disagree in the
@@ -58,6 +61,7 @@ from typing import Any
 
 import numpy as np
 
+REST_SPEED = 0.02  # m/s: at or below it the robot was at rest at a contact (a person walked into it)
 
 @dataclasses.dataclass(frozen=True)
 class DiffDriveBase:
@@ -155,6 +159,7 @@ class IrSimWorld:
         lidar: bool = False,
         seed: int = 0,
         people: tuple[Person, ...] = (),
+        people_walk_on: bool = False,
     ) -> None:
         """Build the world headless.
 
@@ -171,6 +176,11 @@ class IrSimWorld:
             seed: seed of IR-SIM's random generator (nothing here is random; kept for reproducibility).
             people: pedestrians IR-SIM moves each step (:class:`Person`); its LiDAR sees them and its collision
                 check counts them.
+            people_walk_on: a person walking into the robot at rest (|v| <= :data:`REST_SPEED` in the step of the
+                contact, only people touching) walks on through it: the contact is counted in
+                :attr:`rest_contacts` and does not set :attr:`collided`, and the robot, held while they overlap,
+                goes on after (a person who bumps into a robot does not end its mission).  Any other contact sets
+                :attr:`collided` for good.  Without it every contact does, as IR-SIM's flag.
         """
         obstacles = np.asarray(obstacles, dtype=bool)
         if obstacles.ndim != 2 or min(obstacles.shape) < 1:
@@ -202,7 +212,8 @@ class IrSimWorld:
             _write_png(image, obstacles)
             world = {"width": nx * float(resolution), "height": ny * float(resolution),
                      "offset": [float(origin[0]), float(origin[1])], "step_time": self.step_time,
-                     "collision_mode": "stop", "control_mode": "auto", "obstacle_map": image}
+                     "collision_mode": "unobstructed_obstacles" if people_walk_on else "stop",
+                     "control_mode": "auto", "obstacle_map": image}
             path = os.path.join(folder, "hjrno_irsim.yaml")  # JSON is YAML; no world name (it crashes)
             with open(path, "w") as f:
                 json.dump({"world": world, "robot": [robot], **({"obstacle": [p.as_irsim() for p in people]}
@@ -221,9 +232,26 @@ class IrSimWorld:
             raise
         self._closed = False
         self.people = tuple(people)
+        self.people_walk_on = people_walk_on
         self.contact_speed: float | None = None  # |v| the robot had in the step that collided
+        self.rest_contacts = 0  # people who walked into the robot at rest (people_walk_on only)
         self.min_people_clearance = math.inf  # m between the robot's and the people's disks, over the steps
+        self.min_people_clearance_moving = math.inf  # the same over the steps the robot moved in
+        self._touching = self._crashed = False
+        self._track_contact()
         self._track_people()
+
+    def _track_contact(self) -> None:
+        """Sort a new contact: a person walking into the robot at rest (``people_walk_on``), else a crash."""
+        touching = bool(self._robot.collision)
+        if touching and not self._touching and not self._crashed:
+            speed = abs(self.velocity[0])  # what IR-SIM applied in the step of the contact
+            bumped = all(obj.shape != "map" for obj in self._robot.collision_obj) and speed <= REST_SPEED
+            if self.people_walk_on and bumped:
+                self.rest_contacts += 1
+            else:
+                self._crashed, self.contact_speed = True, speed
+        self._touching = touching
 
     def _track_people(self) -> None:
         if not self.people:
@@ -233,6 +261,8 @@ class IrSimWorld:
             px, py = (float(v) for v in obj.state[:2, 0])
             gap = math.hypot(px - x, py - y) - person.radius - self.base.radius
             self.min_people_clearance = min(self.min_people_clearance, gap)
+            if abs(self.velocity[0]) > REST_SPEED:
+                self.min_people_clearance_moving = min(self.min_people_clearance_moving, gap)
 
     @property
     def people_positions(self) -> np.ndarray:
@@ -274,14 +304,14 @@ class IrSimWorld:
         """Advance one ``step_time`` with the command ``[linear m/s, angular rad/s]``.
 
         IR-SIM clips the command to the velocity and acceleration limits, moves the robot, scans and
-        checks collision; after a collision the robot stays where it is.
+        checks collision; after a collision the robot stays where it is (with ``people_walk_on``: while anything
+        overlaps it).
         """
         if self._closed:
             raise RuntimeError("IrSimWorld is closed")
         self._env.step([float(linear), float(angular)])
         self._steps += 1
-        if self.collided and self.contact_speed is None:
-            self.contact_speed = abs(self.velocity[0])  # what IR-SIM applied in the colliding step
+        self._track_contact()
         self._track_people()
 
     @property
@@ -298,8 +328,9 @@ class IrSimWorld:
 
     @property
     def collided(self) -> bool:
-        """IR-SIM's own collision flag for the robot (footprint touching an occupied cell)."""
-        return bool(self._robot.collision)
+        """The robot crashed: IR-SIM's collision flag (footprint touching an occupied cell or a person) set by a
+        contact other than a person walking into it at rest (``people_walk_on``; without it, any contact)."""
+        return self._crashed
 
     @property
     def time(self) -> float:

@@ -225,6 +225,9 @@ def add_arguments(p) -> None:
     p.add_argument("--obstacle-speed", type=float, default=None, help="people bench: obstacle_speed_max (1.0 m/s)")
     p.add_argument("--scan-timeout", type=float, default=None, help="people bench: the scan source's timeout (0.5 s)")
     p.add_argument("--agent-table", default=None, help="people bench: the tracked agents' tables (models/agents_ROBOT)")
+    p.add_argument("--after-rest-contact", choices=("continue", "end"), default="continue",
+                   help="people bench: a person who walked into the robot at rest walks on and the episode goes on "
+                   "(continue, the default), or the episode ends (end)")
     for name in ("robots", "maps", "drivers", "filters"):  # nav_bench.ROBOTS, MAPS, DRIVERS, FILTERS
         p.add_argument(f"--{name}", default=None, help=f"nav bench: comma-separated {name} (default: all); people "
                        "bench: its filters and drivers, one robot and one map")
@@ -235,13 +238,14 @@ def dispatch_args(args) -> int:
     return dispatch(args.what, Path(args.out), quick=args.quick, only=args.only, model=args.model,
                     episodes=args.episodes, seconds=args.seconds, scan_rate=args.scan_rate,
                     obstacle_speed=args.obstacle_speed, agent_table=args.agent_table, scan_timeout=args.scan_timeout,
+                    after_rest_contact=args.after_rest_contact,
                     select={k: getattr(args, k) for k in ("robots", "maps", "drivers", "filters")})
 
 
 def dispatch(what: str, out: Path, quick: bool = False, only: str | None = None, model: str | None = None,
              episodes: int | None = None, seconds: float | None = None, select: dict | None = None,
              scan_rate: float = 0.0, obstacle_speed: float | None = None, agent_table: str | None = None,
-             scan_timeout: float | None = None) -> int:
+             scan_timeout: float | None = None, after_rest_contact: str = "continue") -> int:
     """``hjrno bench WHAT``: the depot check, the navigation benchmark and the fuzz soak (each its own module), or
     :func:`run`'s benches.  ``select``: the navigation benchmark's robots, maps, drivers and filters."""
     if what == "nav":
@@ -259,7 +263,8 @@ def dispatch(what: str, out: Path, quick: bool = False, only: str | None = None,
                                 robot_name=((select or {}).get("robots") or "jackal").split(",")[0],
                                 map_name=((select or {}).get("maps") or people_bench.DEFAULT_MAP).split(",")[0],
                                 filters=tuple(chosen.split(",")) if chosen else people_bench.FILTERS,
-                                agent_table=agent_table, scan_timeout=scan_timeout or people_bench.SCAN_TIMEOUT)
+                                agent_table=agent_table, scan_timeout=scan_timeout or people_bench.SCAN_TIMEOUT,
+                                after_rest_contact=after_rest_contact)
     if what == "soak":
         from hjrno_ros.tools import soak_bench
 

@@ -13,18 +13,23 @@ model, seeing the people exactly. Each case also runs without people, so that go
 the same episodes on an empty floor.
 
 Reported per (driver, filter, people): collisions split by the robot's speed at contact (IR-SIM's own check; moving:
-|v| > 0.02 m/s, else a person walked into a stopped robot), the least gap between the robot's and a person's disks,
-goals, time to goal against the same runs without people, and the stopped and fail-closed shares.
+|v| > 0.02 m/s, else a person walked into a stopped robot), the least gap between the robot's and a person's disks
+(over all steps, and over the steps the robot moved in), goals, time to goal against the same runs without people,
+and the stopped and fail-closed shares.  A moving contact ends the episode.  A person walking into the robot at rest
+does not by default (``after_rest_contact="continue"``): they walk on, as people who bump into a robot do, and the
+robot goes on once they are off it; ``"end"`` ends the episode at any contact, as IR-SIM's stop mode does.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import math
 import platform
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -32,9 +37,10 @@ from hjrno_ros.core.atomic import atomic_write
 from hjrno_ros.core.stop_zone import StopZoneSettings, stop_zone_filter
 from hjrno_ros.core.tables import records_table
 from hjrno_ros.studies import navigation as nav
+from hjrno_ros.studies.irsim_world import REST_SPEED
 from hjrno_ros.tools.nav_bench import INTERRUPT, STEP, node_params
 
-MOVING = 0.02  # m/s: the robot moved into the contact above this speed
+MOVING = REST_SPEED  # m/s: the robot moved into the contact above this speed
 SCAN_EVERY = 2  # steps of STEP s between LaserScans: 10 Hz
 SEED_OFFSET = 7  # the random pedestrians' seed, after the episodes'
 TURN_SHORT = 1.0  # m: the walkers on the robot's route turn this far short of its goals and start
@@ -42,6 +48,17 @@ WALKER_CLEARANCE = 0.4  # m: a turning point's least distance to a wall
 DEFAULT_MAP = "plan1000001"  # a held-out floor plan; ``depot`` is Nav2's map
 AGENTS_TOPIC = "tracked_agents"  # brt_node+agents: IR-SIM's pedestrians as a perfect tracker's PointCloud2
 SCAN_TIMEOUT = 0.5  # s: the scan source's default timeout
+AFTER_REST_CONTACT = ("continue", "end")  # a person walked into the robot at rest: the episode goes on, or ends
+
+
+class PeopleRun(NamedTuple):
+    """One episode and what the world saw of its contacts."""
+
+    result: nav.EpisodeResult
+    contact_speed: float | None  # m/s, the crash's (None: no crash)
+    min_gap: float  # m between the robot's and a person's disks, every step
+    min_gap_moving: float  # the same over the steps the robot moved in
+    rest_contacts: int  # people who walked into the robot at rest and walked on
 
 
 def turning_points(a: tuple[float, float], b: tuple[float, float], clearance: Callable[[np.ndarray], np.ndarray],
@@ -88,12 +105,14 @@ BLIND = ("follower", "careless")  # the default: drivers blind to people
 
 def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str = DEFAULT_MAP,
         seconds: float | None = None, model: str | None = None, obstacle_speed_max: float = 1.0,
-        scan_timeout: float = SCAN_TIMEOUT,
+        scan_timeout: float = SCAN_TIMEOUT, after_rest_contact: str = "continue",
         filters: tuple[str, ...] = FILTERS, agent_table: str | None = None, progress=print,
         drivers: tuple[str, ...] = BLIND) -> int:
     """The benchmark; returns 1 when brt_node drove into something.  Rows merge into ``out``/people.json by
-    (driver, filter, obstacle_speed_max, agent_deviation, scan_timeout), one file per robot and map
-    (:func:`results_stem`).  ``scan_timeout``: the scan source's timeout, s, which the motion margin covers.
+    (driver, filter, obstacle_speed_max, agent_deviation, scan_timeout, after_rest_contact), one file per robot and
+    map (:func:`results_stem`).  ``after_rest_contact``: ``continue`` (a person who walked into the robot at rest
+    walks on and the episode goes on) or ``end``.  ``scan_timeout``: the scan source's timeout, s, which the motion
+    margin covers.
     ``map_name``: ``depot`` or ``planSEED`` (``nav_bench.nav_map_named``).  ``seconds`` per episode: the
     navigation benchmark's for the robot.  ``agent_table``: the tracked agents' tables (default: the bundled
     ``agents_<robot>``).  ``drivers``: the drivers blind to people by default; ``replanning`` is the follower with
@@ -106,6 +125,8 @@ def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str 
     unknown = set(filters) - set(FILTERS)
     if unknown:
         raise ValueError(f"people bench filters are {FILTERS}, got {sorted(unknown)}")
+    if after_rest_contact not in AFTER_REST_CONTACT:
+        raise ValueError(f"after_rest_contact is one of {AFTER_REST_CONTACT}, got {after_rest_contact!r}")
     if set(drivers) - set(DRIVERS):
         raise ValueError(f"people bench drivers are {DRIVERS}, got {sorted(set(drivers) - set(DRIVERS))}")
     model = model or str(ROOT / "models" / "default")
@@ -121,9 +142,9 @@ def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str 
     def world(e: nav.Episode, seed: int, people: bool, lidar: bool) -> IrSimWorld:
         crowd = people_for(nav_map, robot, e, seed) if people else ()
         return IrSimWorld(nav_map.obstacles, nav_map.origin, nav_map.resolution, base, e.start, STEP, lidar=lidar,
-                          people=crowd)
+                          people=crowd, people_walk_on=after_rest_contact == "continue")
 
-    runs: dict[tuple[str, str, bool], list[tuple]] = {}
+    runs: dict[tuple[str, str, bool], list[PeopleRun]] = {}
     started = time.perf_counter()
     for name in filters:
         with _filter_runner(name, nav_map, robot, sd, model, obstacle_speed_max, seconds, agent_table,
@@ -137,17 +158,20 @@ def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str 
                         driver = nav.GoalDriver("follower" if replanning else driver_kind, nav_map, robot, e,
                                                 INTERRUPT, sd, sensed=w.scan_points if replanning else None)
                         try:
-                            results.append((drive_one(w, driver, e), w.contact_speed, w.min_people_clearance))
+                            results.append(PeopleRun(drive_one(w, driver, e), w.contact_speed, w.min_people_clearance,
+                                                     w.min_people_clearance_moving, w.rest_contacts))
                         finally:
                             w.close()
                     runs[(driver_kind, name, people)] = results
                     progress(f"{driver_kind} {name} people={people}: "
-                             f"{sum(r.collided for r, _, _ in results)} collisions "
+                             f"{sum(r.result.collided for r in results)} crashes, "
+                             f"{sum(r.rest_contacts for r in results)} people walked on "
                              f"({time.perf_counter() - t0:.0f} s)")
     rows = [{**summarize(driver_kind, name, runs[(driver_kind, name, True)], runs[(driver_kind, name, False)]),
              "obstacle_speed_max": obstacle_speed_max if name == "brt_node" else None,
              "agent_deviation": deviation if name == "brt_node+agents" else None,
-             "scan_timeout": scan_timeout if name.startswith("brt_node") else None}
+             "scan_timeout": scan_timeout if name.startswith("brt_node") else None,
+             "after_rest_contact": after_rest_contact}
             for driver_kind in drivers for name in filters]
     write(Path(out), rows, {"episodes_per_case": episodes, "robot": robot_name, "map": map_name, "seconds": seconds,
                             "model": str(model), "wall_s": round(time.perf_counter() - started)})
@@ -221,27 +245,30 @@ def _drive(w, nav_map, driver, episode, domain, seconds, tail, agents_every: int
     return episode_result(base)
 
 
-def summarize(driver: str, name: str, with_people: list[tuple], without: list[tuple]) -> dict:
+def summarize(driver: str, name: str, with_people: list[PeopleRun], without: list[PeopleRun]) -> dict:
     """One row: the runs among people against the same episodes without them."""
-    moving = sum(r.collided and (v is None or v > MOVING) for r, v, _ in with_people)
+    moving = sum(r.result.collided and (r.contact_speed is None or r.contact_speed > MOVING) for r in with_people)
     ratios = []
-    for (r, _, _), (ref, _, _) in zip(with_people, without, strict=True):
-        both = min(len(r.reached), len(ref.reached))
+    for run, ref in zip(with_people, without, strict=True):
+        both = min(len(run.result.reached), len(ref.result.reached))
         if both:
-            ratios.append((r.reached[both - 1], ref.reached[both - 1]))
-    steps = sum(r.steps for r, _, _ in with_people)
+            ratios.append((run.result.reached[both - 1], ref.result.reached[both - 1]))
+    steps = sum(r.result.steps for r in with_people)
+    moving_gaps = [r.min_gap_moving for r in with_people if math.isfinite(r.min_gap_moving)]
     return {
         "driver": driver, "filter": name, "episodes": len(with_people),
         "collisions_moving": moving,
-        "collisions_stopped": sum(r.collided for r, _, _ in with_people) - moving,
-        "collisions_without_people": sum(r.collided for r, _, _ in without),
-        "min_gap_to_people_m": round(min(g for _, _, g in with_people), 3),
-        "goals": sum(len(r.reached) for r, _, _ in with_people),
-        "goals_without_people": sum(len(r.reached) for r, _, _ in without),
+        "collisions_stopped": sum(r.result.collided for r in with_people) - moving
+        + sum(r.rest_contacts for r in with_people),
+        "collisions_without_people": sum(r.result.collided for r in without),
+        "min_gap_to_people_m": round(min(r.min_gap for r in with_people), 3),
+        "min_gap_moving_m": round(min(moving_gaps), 3) if moving_gaps else None,
+        "goals": sum(len(r.result.reached) for r in with_people),
+        "goals_without_people": sum(len(r.result.reached) for r in without),
         "time_to_goal_vs_no_people": round(sum(a for a, _ in ratios) / sum(b for _, b in ratios), 3) if ratios
         else None,
-        "stopped_share": round(sum(r.stopped for r, _, _ in with_people) / max(steps, 1), 3),
-        "fail_closed_share": round(sum(r.fail_closed for r, _, _ in with_people) / max(steps, 1), 4),
+        "stopped_share": round(sum(r.result.stopped for r in with_people) / max(steps, 1), 3),
+        "fail_closed_share": round(sum(r.result.fail_closed for r in with_people) / max(steps, 1), 4),
     }
 
 
@@ -257,14 +284,17 @@ def write(out: Path, rows: list[dict], run: dict) -> None:
     out.mkdir(parents=True, exist_ok=True)
     stem = results_stem(run["robot"], run["map"])
     key = lambda r: (r["driver"], r["filter"], r["obstacle_speed_max"], r.get("agent_deviation"),  # noqa: E731
-                     r["scan_timeout"])
+                     r["scan_timeout"], r["after_rest_contact"])
     path = out / f"{stem}.json"
     old = json.loads(path.read_text())["rows"] if path.is_file() else []
-    for r in old:  # rows from before the option ran at the default
+    for r in old:  # rows from before the options: the scan source's default timeout, episodes ended at any contact
         r.setdefault("scan_timeout", SCAN_TIMEOUT if r["filter"].startswith("brt_node") else None)
+        r.setdefault("after_rest_contact", "end")
+        r.setdefault("min_gap_moving_m", None)
     rows = [r for r in old if key(r) not in {key(n) for n in rows}] + rows
     order = lambda r: FILTERS.index(r["filter"]) if r["filter"] in FILTERS else len(FILTERS)  # noqa: E731
-    rows.sort(key=lambda r: (DRIVERS.index(r["driver"]), order(r), r["obstacle_speed_max"] or 0.0,
+    rows.sort(key=lambda r: (AFTER_REST_CONTACT.index(r["after_rest_contact"]), DRIVERS.index(r["driver"]), order(r),
+                             r["obstacle_speed_max"] or 0.0,
                              r.get("agent_deviation") or 0.0, -(r["scan_timeout"] or 0.0)))
     report = {"machine": f"{platform.machine()}, Python {platform.python_version()}", "date": time.strftime("%Y-%m-%d"),
               "step_s": STEP, **run, "rows": rows}
@@ -279,9 +309,11 @@ def write(out: Path, rows: list[dict], run: dict) -> None:
             "stop_zone is collision_monitor's stop polygon and approach model with the "
             "people's true positions. none and stop_zone run lockstep, brt_node over DDS in real time. "
             "collisions_moving: "
-            f"the robot moved (|v| > {MOVING} m/s) into the contact; collisions_stopped: a person walked into the "
-            "robot at rest. min_gap: between the robot's and a person's disks. time to goal: against the same "
-            "episodes without people, over the goals both reached.")
+            f"the robot moved (|v| > {MOVING} m/s) into the contact (it ends the episode); collisions_stopped: a "
+            "person walked into the robot at rest (after_rest_contact continue: they walk on through it, the robot "
+            "held while they overlap, and the episode goes on; end: the episode ends there). min_gap: between the "
+            "robot's and a person's disks, every step; min_gap_moving: over the steps the robot moved in. time to "
+            "goal: against the same episodes without people, over the goals both reached.")
     atomic_write(path, lambda p: Path(p).write_text(json.dumps(report, indent=1) + "\n"))
     atomic_write(out / f"{stem}.md", lambda p: Path(p).write_text(
         "\n".join(["# People benchmark", "", note, "", *records_table(rows, blank_none=True)]) + "\n"))

@@ -183,7 +183,8 @@ def test_two_worlds_step_independently():
 
 def test_pedestrians_walk_are_seen_by_the_lidar_and_their_contacts_are_timed():
     """A person IR-SIM moves (social force, omni) walks between two points at 1 m/s and the LiDAR sees them; a robot
-    that drives into a person standing still collides (IR-SIM's check) with its speed at contact recorded."""
+    that drives into a person standing still collides (IR-SIM's check) with its speed at contact recorded, whether
+    or not people walk on after bumping into a robot at rest."""
     from hjrno_ros.studies.irsim_world import Person
 
     occ = walled(160, 80)  # 8 m x 4 m from (-1, -2)
@@ -200,11 +201,37 @@ def test_pedestrians_walk_are_seen_by_the_lidar_and_their_contacts_are_timed():
         assert 2.1 < x < 2.6 and abs(y) < 0.3  # about 1 s at 1 m/s towards (5.5, 0), pushed off the robot
         assert world.contact_speed is None and not world.collided
     standing = Person(((1.0, 0.0), (1.0, 0.0)), speed=0.01)
-    with IrSimWorld(occ, (-1.0, -2.0), 0.05, BASE, (0.0, 0.0, 0.0), step_time=DT, people=(standing,)) as world:
-        while not world.collided and world.time < 10.0:
-            world.step(BASE.v_max, 0.0)
-        assert world.collided and world.contact_speed == pytest.approx(BASE.v_max)
-        assert world.min_people_clearance <= 1e-9  # the disks touched
+    for walk_on in (False, True):  # driving into a person is a crash either way
+        with IrSimWorld(occ, (-1.0, -2.0), 0.05, BASE, (0.0, 0.0, 0.0), step_time=DT, people=(standing,),
+                        people_walk_on=walk_on) as world:
+            while not world.collided and world.time < 10.0:
+                world.step(BASE.v_max, 0.0)
+            assert world.collided and world.contact_speed == pytest.approx(BASE.v_max)
+            assert world.min_people_clearance <= 1e-9 and world.rest_contacts == 0  # the disks touched
+
+
+def test_a_person_walking_into_the_robot_at_rest_ends_the_episode_only_without_walk_on():
+    """A walker whose path crosses a robot at rest touches it.  IR-SIM's stop mode freezes both for good (the robot
+    crashed, at speed 0); with ``people_walk_on`` the contact is counted, the walker walks on and the robot drives
+    on after it, and only the gaps kept while moving count as the robot's."""
+    from hjrno_ros.studies.irsim_world import Person
+
+    occ = walled(160, 80)
+    for walk_on in (False, True):
+        walker = Person(((3.0, 0.0), (-0.9, 0.0)), speed=1.0)
+        with IrSimWorld(occ, (-1.0, -2.0), 0.05, BASE, (0.0, 0.0, 0.0), step_time=DT, people=(walker,),
+                        people_walk_on=walk_on) as world:
+            for _ in range(100):  # 5 s: the walker reaches the robot after about 3 s
+                world.step(0.0, 0.0)
+            assert world.min_people_clearance < 0.0  # they touched
+            for _ in range(20):
+                world.step(BASE.v_max, 0.0)
+            if walk_on:
+                assert not world.collided and world.contact_speed is None and world.rest_contacts == 1
+                assert world.pose[0] > 0.2 and world.min_people_clearance_moving > 0.0  # drove on, clear of them
+            else:
+                assert world.collided and world.contact_speed == 0.0 and world.rest_contacts == 0
+                assert world.pose[0] == 0.0 and world.min_people_clearance_moving == math.inf
 
 
 def test_scan_messages_read_inf_where_irsim_saw_nothing():

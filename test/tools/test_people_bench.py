@@ -28,6 +28,7 @@ def test_people_bench_rows_and_no_moving_contact_with_tracked_agents(tmp_path):
     assert "| brt_node+agents |" in (tmp_path / "people.md").read_text()
     assert rows[("follower", "brt_node+agents")]["scan_timeout"] == 0.5  # the node's scan source, at its default
     assert rows[("follower", "stop_zone")]["scan_timeout"] is None  # no node, no scan source
+    assert {r["after_rest_contact"] for r in rows.values()} == {"continue"}  # people walk on by default
     assert people_bench.results_stem("turtlebot3", "depot") == "people_turtlebot3_depot"
     assert people_bench.results_stem("jackal", people_bench.DEFAULT_MAP) == "people"
     with pytest.raises(ValueError, match="filters"):
@@ -36,6 +37,26 @@ def test_people_bench_rows_and_no_moving_contact_with_tracked_agents(tmp_path):
         people_bench.run(tmp_path, map_name="atlantis")
     with pytest.raises(ValueError, match="drivers"):
         people_bench.run(tmp_path, drivers=("magic",))
+    with pytest.raises(ValueError, match="after_rest_contact"):
+        people_bench.run(tmp_path, after_rest_contact="pause")
+
+
+def test_rows_count_people_who_walked_on_as_contacts_at_rest_and_crashes_by_speed():
+    from hjrno_ros.studies import navigation as nav
+
+    def episode(collided: bool, reached: list[float]) -> nav.EpisodeResult:
+        return nav.EpisodeResult(collided, 5.0 if collided else None, reached, 3, 200, 40, 0, 0, np.zeros((0, 6)))
+
+    Run = people_bench.PeopleRun
+    with_people = [Run(episode(False, [10.0, 20.0]), None, -0.3, 0.4, 2),  # two walked into it at rest, walked on
+                   Run(episode(True, [12.0]), 0.6, -0.01, -0.01, 0),  # drove into someone at 0.6 m/s
+                   Run(episode(True, []), 0.0, -0.02, np.inf, 0)]  # bumped at rest, the episode ended (end)
+    without = [Run(episode(False, [8.0, 16.0, 24.0]), None, np.inf, np.inf, 0)] * 3
+    row = people_bench.summarize("follower", "brt_node", with_people, without)
+    assert (row["collisions_moving"], row["collisions_stopped"]) == (1, 3)
+    assert (row["min_gap_to_people_m"], row["min_gap_moving_m"]) == (-0.3, -0.01)
+    assert (row["goals"], row["goals_without_people"]) == (3, 9)
+    assert row["time_to_goal_vs_no_people"] == pytest.approx((20.0 + 12.0) / (16.0 + 8.0), abs=1e-3)
 
 
 def test_walkers_on_the_route_turn_short_of_the_robots_goals_and_off_the_walls():
