@@ -51,14 +51,20 @@ def at_time(cert: Certificate, seconds: float) -> Certificate:
 
 
 def certificate(params: RobotParams, clearance: Clearance, table=None, epsilon: float = 0.0,
-                moving: tuple[Clearance, float] | None = None) -> Certificate:
+                moving: tuple[Clearance, float] | None = None, elapsed: float = 0.0) -> Certificate:
     """W(s) = max(V̂(s) − ε, braking bound) where ``table`` (``value``, ``inside``) covers s, else the braking
     bound alone: a state the learned table does not reach is judged by the bound that needs no model.
-    ``moving``: the clearance of obstacles that may approach and their speed (:func:`braking_value`)."""
+    ``moving``: the clearance now of obstacles that may approach, and their speed u (:func:`braking_value`); W then
+    varies in time: ``at(seconds)`` is W for states that many seconds after now, those obstacles u·seconds nearer
+    (``elapsed``: this certificate's seconds after now)."""
+    then = None
+    if moving is not None:
+        near, speed = moving
+        then = ((lambda points: near(points) - speed * elapsed), speed)
 
     def w(states: np.ndarray) -> np.ndarray:
         states = np.asarray(states, float)
-        bound = braking_value(params, clearance, states, moving=moving)
+        bound = braking_value(params, clearance, states, moving=then)
         if table is None:
             return bound
         grid = table.grid
@@ -71,6 +77,7 @@ def certificate(params: RobotParams, clearance: Clearance, table=None, epsilon: 
 
     if moving is not None:  # what stands still: kept by the rule while W is at or below 0 (filter_least_restrictive)
         w.floor = lambda states: braking_value(params, clearance, np.asarray(states, float))
+        w.at = lambda seconds: certificate(params, clearance, table, epsilon, moving, seconds)
     return w
 
 
@@ -165,17 +172,16 @@ def filter_least_restrictive(params: RobotParams, settings: FilterSettings, cert
     w_here, w_now, w_next = _three(cert, here, states, nxt[:, 0], delay, settings.dt)
     need = required(settings, w_now - lag)
     blind = ~np.isfinite(w_now)  # no table and no bound where the command acts (a car, d₀ > 0): fail closed
-    floor = getattr(cert, "floor", None)
-    floor_need = _floor_need(settings, floor, states, w_now - lag, lag)
+    later = at_time(cert, delay + settings.dt)  # the certificate when the command has acted
+    floor_need = _floor_need(settings, getattr(at_time(cert, delay), "floor", None), states, w_now - lag, lag)
     changed = blind | ~(w_next - drift[:, 0] - lag >= need)
     if floor_need is not None:
-        changed |= ~(floor(nxt[:, 0]) - drift[:, 0] - lag >= floor_need)
+        changed |= ~(later.floor(nxt[:, 0]) - drift[:, 0] - lag >= floor_need)
     out = nominal.copy()
     search = changed & ~blind  # only the commands the nominal fails are searched (most pass: a cheap common case)
     if search.any():
-        out[search] = _closest_admissible(params, settings, at_time(cert, delay + settings.dt), states[search],
-                                          nominal[search], lag[search], need[search],
-                                          None if floor_need is None else floor_need[search])
+        out[search] = _closest_admissible(params, settings, later, states[search], nominal[search], lag[search],
+                                          need[search], None if floor_need is None else floor_need[search])
     out[blind] = 0.0
     return out, changed, np.where(blind, -np.inf, w_here)
 
@@ -195,20 +201,24 @@ def _closest_admissible(params: RobotParams, settings: FilterSettings, cert: Cer
                         nominal: np.ndarray, lag: np.ndarray, need: np.ndarray,
                         floor_need: np.ndarray | None = None) -> np.ndarray:
     """For inadmissible nominal commands: the admissible command nearest each on the grid, moved along the
-    segment toward its nominal as far as stays admissible; where none is admissible, the highest W."""
+    segment toward its nominal as far as stays admissible; where none is admissible, the highest W (where W is at
+    or below 0: of those that keep the floor's rule, if any do)."""
 
-    def admissible(twists: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def judged(twists: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """W after each twist, whether it is admissible, whether it keeps the floor's rule."""
         nxt, drift = _after(params, settings, states, twists)
         w = cert(nxt) - drift - lag[:, None]
-        ok = w >= need[:, None]
+        kept = np.ones(w.shape, bool)
         if floor_need is not None:
-            ok &= cert.floor(nxt) - drift - lag[:, None] >= floor_need[:, None]
-        return w, ok
+            kept = cert.floor(nxt) - drift - lag[:, None] >= floor_need[:, None]
+        return w, (w >= need[:, None]) & kept, kept
 
     tries = _grid(params, states, nominal, settings.dt)
-    w, ok = admissible(tries)
+    w, ok, kept = judged(tries)
     distance = _distance(params, tries, nominal[:, None])
-    safest = w >= w.max(1, keepdims=True) - 1e-9  # none admissible: the highest W, nearest the nominal among ties
+    # none admissible: the highest W (among the commands that keep the floor's rule, if any), nearest the nominal
+    w = np.where(kept | ~kept.any(1, keepdims=True), w, -np.inf)
+    safest = w >= w.max(1, keepdims=True) - 1e-9
     best = np.where(ok.any(1), np.where(ok, distance, np.inf).argmin(1), np.where(safest, distance, np.inf).argmin(1))
     out = tries[np.arange(len(states)), best]
     out[~np.isfinite(w.max(1))] = 0.0  # every command leaves what the certificate covers: stop
@@ -217,7 +227,7 @@ def _closest_admissible(params: RobotParams, settings: FilterSettings, cert: Cer
         t = np.linspace(0.0, 1.0, SEGMENT_POINTS + 1)[1:]
         seg = np.broadcast_to(nominal[:, None], (len(states), len(t), 2)).copy()
         seg[refine] = nominal[refine, None] + t[:, None] * (out[refine] - nominal[refine])[:, None]
-        seg_ok = admissible(seg)[1][refine]
+        seg_ok = judged(seg)[1][refine]
         first = seg_ok.argmax(1)  # t = 1 (the best grid command) is admissible
         out[refine] = seg[refine][np.arange(refine.sum()), first]
     return out

@@ -48,12 +48,14 @@ def transform(points: np.ndarray, pose: Pose2) -> np.ndarray:
 @dataclasses.dataclass(frozen=True)
 class PointObstacles:
     """Disks of radius ``margin`` m centred on ``points`` (N, 2) in the map frame: ``distance`` is their signed
-    distance, the clearance they leave.  ``approach``: how fast they may come nearer, m/s (0: they stand still;
-    the value table and the braking bound grow them by that speed times the robot's time to stop)."""
+    distance, the clearance they leave.  ``approach``: how fast they may come nearer, m/s (0: they stand still),
+    since ``received``, the monotonic time (s) their data arrived; the value table and the braking bound grow them
+    by that speed over the data's age and the robot's stop (docs/design.md, "Moving obstacles")."""
 
     points: np.ndarray
     margin: float = 0.0
     approach: float = 0.0
+    received: float = 0.0
 
     def __post_init__(self) -> None:
         points = np.ascontiguousarray(self.points, np.float64).reshape(-1, 2)

@@ -176,12 +176,14 @@ class AgentCertificate:
                  elapsed: float = 0.0):
         self.static, self.table, self.agents, self.footprint = static, table, agents, footprint
         self.age, self.elapsed = age, elapsed
+        shift = getattr(static, "at", None)  # untracked returns that may approach make it time-varying too
+        self.static_then = shift(elapsed) if shift is not None else static
 
     @property
     def floor(self) -> Certificate:
         """What the agents do not lower: the static certificate, which the filter holds to its rule while W is at
         or below 0 (core/least_restrictive.py)."""
-        return self.static
+        return self.static_then
 
     def at(self, seconds: float) -> AgentCertificate:
         """This certificate for states ``seconds`` after now (the agents moved on meanwhile)."""
@@ -197,7 +199,7 @@ class AgentCertificate:
         return w.min(0)
 
     def __call__(self, states: np.ndarray) -> np.ndarray:
-        return np.minimum(self.static(states), self.agents_value(states))
+        return np.minimum(self.static_then(states), self.agents_value(states))
 
 
 def with_agents(static: Certificate, table: AgentTable | None, agents: Agents | None, footprint: float,

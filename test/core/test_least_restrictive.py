@@ -253,3 +253,85 @@ def test_speed_near_a_person_within_the_motion_margin_is_held_by_the_braking_bou
     cert = certificate(ROBOT, wall, None, 0.0, moving=(person, 1.0))
     assert cert(np.zeros((1, 4)))[0] < 0 and hasattr(cert, "floor")
     assert _back_away(cert) == (0.0, 0.0)
+
+
+def _walk_at_the_robot(seed: int, age_of, time_varying: bool = True, steps: int = 200) -> tuple[bool, float]:
+    """A careless driver asks for full speed ahead; a person (disks' radii 0.5 m in all) starts 2.5-4.5 m ahead and,
+    after up to 2 s, walks at 1 m/s straight at the robot.  A scan sees them every 0.1 s; the certificate grows
+    them by 1 m/s times ``age_of(seconds since the scan)``, and with ``time_varying`` by 1 m/s more per second
+    after now (``at``).  Returns (the robot moved into the contact, how far it got)."""
+    rng = np.random.default_rng(seed)
+    free = lambda pts: np.full(np.shape(pts)[:-1], np.inf)  # noqa: E731 - nothing on the map
+    state, person = np.zeros(4), np.array([rng.uniform(2.5, 4.5), rng.uniform(-0.5, 0.5)])
+    starts = rng.uniform(0.0, 2.0)
+    for k in range(steps):
+        t = k * SETTINGS.dt
+        if k % 2 == 0:
+            seen, seen_at = person.copy(), t
+        grown = 0.5 + age_of(t - seen_at)
+        near = lambda pts, p=seen, r=grown: np.linalg.norm(np.asarray(pts) - p, axis=-1) - r  # noqa: E731
+        cert = certificate(ROBOT, free, None, 0.0, moving=(near, 1.0))
+        if not time_varying:  # the same W, taken as it is now for the next state too
+            frozen = lambda states, c=cert: c(states)  # noqa: E731
+            frozen.floor, cert = cert.floor, frozen
+        d = decide(ROBOT, SETTINGS, cert, state, 1.0, 0.0)
+        state = step(ROBOT, state[None], np.array([[d.linear, d.angular]]), SETTINGS.dt)[0]
+        if t >= starts:
+            person = person + SETTINGS.dt * (state[:2] - person) / np.linalg.norm(state[:2] - person)
+        if np.linalg.norm(state[:2] - person) <= 0.5:
+            return abs(state[2]) > 0.02, state[0]
+    return False, state[0]
+
+
+def test_a_person_seen_by_ageing_scans_never_meets_the_robot_moving():
+    """The motion margin at the data's actual age: the certificate grows an untracked person by 1 m/s over the
+    scan's age and varies in time (``at``), so the next state is judged with the person nearer still.  A careless
+    driver never reaches them moving (40 random starts), and gets further than with the margin of the source's
+    whole timeout (0.5 s).  Judging the next state with W as it is now, instead, lets the robot drive into them."""
+    at_age = [_walk_at_the_robot(seed, lambda age: age) for seed in range(40)]
+    at_timeout = [_walk_at_the_robot(seed, lambda age: 0.5) for seed in range(40)]
+    frozen = [_walk_at_the_robot(seed, lambda age: age, time_varying=False) for seed in range(40)]
+    assert not any(moved for moved, _ in at_age) and not any(moved for moved, _ in at_timeout)
+    assert np.mean([x for _, x in at_age]) > np.mean([x for _, x in at_timeout]) + 0.15  # measured: 1.40 m, 1.14 m
+    assert sum(moved for moved, _ in frozen) >= 30  # measured: all 40
+
+
+def test_a_certificate_with_approaching_obstacles_varies_in_time():
+    wall = lambda pts: np.asarray(pts)[..., 0] + 5.0  # noqa: E731
+    person = lambda pts: np.linalg.norm(np.asarray(pts) - [2.0, 0.0], axis=-1)  # noqa: E731
+    cert, still = certificate(ROBOT, wall, None, 0.0, moving=(person, 1.0)), certificate(ROBOT, wall)
+    states = np.array([[0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.5, 0.0]])
+    assert cert.at(0.3)(states) == pytest.approx(cert(states) - 0.3)  # the person 0.3 m nearer
+    assert cert.at(0.3).floor(states) == pytest.approx(cert.floor(states))  # what stands still does not move
+    assert not hasattr(still, "at")
+
+
+class _AgeingPerson:
+    """A wall 0.6 m behind the robot (the floor: what stands still) and a person 0.5 m ahead deep in their margin,
+    whose part of W falls by 2 m/s after now (faster than the robot can back away from them), so no command keeps
+    the rule and the filter falls back on the highest W."""
+
+    def __init__(self, elapsed: float = 0.0, floor: bool = True):
+        self.elapsed, self.has_floor = elapsed, floor
+        self.static = certificate(ROBOT, lambda pts: np.asarray(pts)[..., 0] + 0.6)
+
+    def at(self, seconds: float) -> "_AgeingPerson":
+        return _AgeingPerson(seconds, self.has_floor)
+
+    def __getattr__(self, name: str):
+        if name == "floor" and self.has_floor:
+            return self.static
+        raise AttributeError(name)
+
+    def __call__(self, states: np.ndarray) -> np.ndarray:
+        person = np.linalg.norm(np.asarray(states)[..., :2] - [0.5, 0.0], axis=-1) - 1.35 - 2.0 * self.elapsed
+        return np.minimum(self.static(states), person)
+
+
+def test_with_no_admissible_command_the_highest_w_still_keeps_the_floor():
+    """Nothing keeps the rule, and the highest W is to back away from the person as fast as asked: without the
+    floor the robot does so into the wall; with it, the fallback takes the highest W among the commands that keep
+    the floor's rule, and the robot stops short of the wall."""
+    assert _back_away(_AgeingPerson(floor=False))[0] <= -0.6
+    least, last = _back_away(_AgeingPerson())
+    assert -0.6 < least and last < -0.1

@@ -472,7 +472,7 @@ class BrtNode(LifecycleNode):
         braking bound on the map's and live obstacles' clearance everywhere (ValueWorker.braking_clearances); with
         tracked agents, the least of that and each agent's relative value (core/tracked_agents.py)."""
         m, val = data["map"], data["value"]
-        clearance, moving = self.values.braking_clearances(m, val.obstacles)
+        clearance, moving = self.values.braking_clearances(m, val.obstacles, data["state"].received)
         static = least_restrictive.certificate(self.vf.params, clearance, val.table, epsilon, moving)
         return with_agents(static, self.agent_table, data.get("agents"), self.config.footprint_radius,
                            data["state"].received)

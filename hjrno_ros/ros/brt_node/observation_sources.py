@@ -286,10 +286,10 @@ def tracked(points: np.ndarray, agents: Agents | None, now: float) -> np.ndarray
 
 def live_obstacles(sources: list[ObservationSource], now: float, map_frame: str,
                    pose_at: Callable[[int], Pose2 | None], static_distance: Callable[[np.ndarray], np.ndarray],
-                   moving_margin: float, agents: Agents | None = None, approach: float = 0.0
+                   agents: Agents | None = None, approach: float = 0.0
                    ) -> tuple[list[PointObstacles], tuple[int, ...], str]:
-    """The fresh sources' obstacles in the map frame as disks, grown by ``moving_margin`` (m) and marked as
-    approaching at ``approach`` m/s (:class:`PointObstacles`) where they are neither the static map (what lies
+    """The fresh sources' obstacles in the map frame as disks, marked as approaching at ``approach`` m/s since their
+    data arrived (:class:`PointObstacles`; the users grow them) where they are neither the static map (what lies
     within STATIC_MATCH of a static obstacle is that obstacle, which the map already holds) nor a tracked agent in
     ``agents`` (:func:`fresh_agents`; its own value covers its motion); the sources' data versions (an agents
     source's too, so that new agents make a new table); and the reason a required source is unusable ("" if
@@ -319,5 +319,6 @@ def live_obstacles(sources: list[ObservationSource], now: float, map_frame: str,
             seen, centres, radius = data.points, data.points, data.margin
         static = static_distance(seen) <= STATIC_MATCH + data.margin if len(seen) else np.zeros(0, bool)
         kept = static | tracked(seen, agents, now)
-        out += [PointObstacles(centres[kept], radius), PointObstacles(centres[~kept], radius + moving_margin, approach)]
+        out += [PointObstacles(centres[kept], radius),
+                PointObstacles(centres[~kept], radius, approach, data.received)]
     return out, tuple(versions), ""

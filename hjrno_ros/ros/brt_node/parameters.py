@@ -109,8 +109,10 @@ PARAMETERS: dict[str, Param] = {
                                      "<name>.type, <name>.topic, <name>.timeout, ... (docs/node.md, 'Observation "
                                      "sources'); [] = the map alone", read_only=True),
     "obstacle_speed_max": Param(1.0, "m/s: how fast a live source's obstacles that are not on the static map "
-                                     "(people) may approach; they are grown by this times the robot's time to stop "
-                                     "plus command_latency and the source's timeout", 0.0, 10.0, read_only=True),
+                                     "(people) may approach; the value table grows them by this times the robot's "
+                                     "time to stop, command_latency and the source's timeout, the braking bound by "
+                                     "this times their data's age and the stop from the robot's own speed", 0.0, 10.0,
+                                read_only=True),
     "agent_table": Param("", "tracked agents' relative value tables: a stem or the name of a bundled one "
                              "(agents_jackal, agents_turtlebot3), solved for this robot by `hjrno agents`; needed by "
                              "an 'agents' observation source; '' = none (docs/node.md, 'Tracked agents')",

@@ -182,29 +182,29 @@ class ValueWorker:
         p = self.vf.params
         return max(abs(p.v_min), abs(p.v_max)) / p.a_max
 
-    def moving_margin(self) -> float:
-        """m: how far a live obstacle that is not on the static map may come before the robot, at its top speed,
-        has stopped: ``obstacle_speed_max`` times (the time to stop, ``command_latency`` and the largest source
-        timeout, the oldest data the node filters with); docs/design.md, "Moving obstacles"."""
-        return self.age_margin() + self.cfg().obstacle_speed_max * self.stop_time()
-
-    def age_margin(self) -> float:
-        """m: the share of :meth:`moving_margin` that does not depend on the robot's speed (the data's age and the
-        command's latency), which the live obstacles are grown by; the stop's share is added where they are
-        used: the top speed's in V0, the state's own in the braking bound (:meth:`braking_clearances`)."""
-        cfg = self.cfg()
+    def moving_horizon(self) -> float:
+        """s: how long a live obstacle that is not on the static map may approach before the robot, at its top
+        speed, has stopped: the time to stop, ``command_latency`` and the largest source timeout (the oldest data
+        the node filters with).  The value table's V0 grows such obstacles by their speed times this; the braking
+        bound by the data's actual age and the robot's own stop (docs/design.md, "Moving obstacles")."""
         timeout = max((s.config.timeout for s in self.sources), default=0.0)
-        return cfg.obstacle_speed_max * (cfg.command_latency + timeout)
+        return self.stop_time() + self.cfg().command_latency + timeout
 
-    def braking_clearances(self, m: MapData, obstacles: tuple[PointObstacles, ...]
+    def moving_margin(self) -> float:
+        """m: the value table's margin around live obstacles off the static map, ``obstacle_speed_max`` times
+        :meth:`moving_horizon`."""
+        return self.cfg().obstacle_speed_max * self.moving_horizon()
+
+    def braking_clearances(self, m: MapData, obstacles: tuple[PointObstacles, ...], now: float
                            ) -> tuple[Clearance, tuple[Clearance, float] | None]:
         """The braking bound's clearances: of the map and the obstacles that stand still, and of those that may
-        approach, with their speed (None without such obstacles); core/braking.py."""
+        approach as at monotonic time ``now`` (grown by their speed over their data's age then), with their speed
+        (None without such obstacles); core/braking.py, core/least_restrictive.py (``at``: later times)."""
         still = tuple(o for o in obstacles if not o.approach)
         moving = tuple(o for o in obstacles if o.approach)
 
         def approaching(points: np.ndarray) -> np.ndarray:
-            least = np.min([o.distance(points) for o in moving], axis=0)
+            least = np.min([o.distance(points) - o.approach * max(now - o.received, 0.0) for o in moving], axis=0)
             return least - self.inflation(m.resolution, model_grid=False)
 
         static = lambda points: self.clearance(m, points, still)  # noqa: E731
@@ -222,7 +222,7 @@ class ValueWorker:
             return (), (), reason
         obstacles, versions, reason = live_obstacles(
             self.sources, now, m.frame_id, lambda stamp: self.states.pose_at(stamp, state),
-            lambda pts: map_distance(m, pts), self.age_margin(), agents, self.cfg().obstacle_speed_max)
+            lambda pts: map_distance(m, pts), agents, self.cfg().obstacle_speed_max)
         return tuple(obstacles), versions, reason
 
     def v0(self, m: MapData, points: np.ndarray) -> np.ndarray:
@@ -261,9 +261,9 @@ class ValueWorker:
                 return
             points = self.vf.window_points(center)
             v0 = self.v0(m, points)
-            stop = self.stop_time()
-            for obstacle in obstacles:  # the live sources, approaching ones for the top speed's stop: window only
-                d = obstacle.distance(points) - obstacle.approach * stop - self.inflation(m.resolution)
+            horizon = self.moving_horizon()
+            for obstacle in obstacles:  # live sources; approaching ones over the data's life and top speed's stop
+                d = obstacle.distance(points) - obstacle.approach * horizon - self.inflation(m.resolution)
                 v0 = np.minimum(v0, d.astype(np.float32))
             table = self.vf.local_table(v0, center, v, state.theta, reach=self.reach)
         else:

@@ -178,10 +178,10 @@ def test_returns_at_a_tracked_agent_keep_their_disks_and_the_others_the_motion_m
 
     def disks(agents: Agents | None, now: float) -> tuple[np.ndarray, np.ndarray]:
         obstacles, versions, reason = live_obstacles([scan, people], now, "map", lambda _: (0.0, 0.0, 0.0), nothing,
-                                                     0.8, agents)
+                                                     agents, 1.0)
         assert reason == "" and versions == (1, 1) and len(obstacles) == 2  # the agents source adds no disks
         kept, grown = obstacles
-        assert (kept.margin, grown.margin) == (RETURN_DEPTH, RETURN_DEPTH + 0.8)
+        assert (kept.margin, grown.margin) == (RETURN_DEPTH, RETURN_DEPTH) and (kept.approach, grown.approach) == (0, 1)
         return kept.points, grown.points
 
     kept, grown = disks(agents, agents.received + 1.0)  # the agent predicted onto the return behind the robot

@@ -106,12 +106,13 @@ def test_returns_on_the_static_map_keep_no_motion_margin():
     source.on_message(scan_msg([1.0, 3.0, math.inf, math.inf]))  # beams at -π (1 m behind) and -π/2 (3 m right)
     wall_behind = lambda pts: np.linalg.norm(pts - [-1.0, 0.0], axis=-1)  # noqa: E731 - a static obstacle there
     obstacles, versions, reason = live_obstacles([source], time.monotonic(), "map", lambda _: (0.0, 0.0, 0.0),
-                                                 wall_behind, moving_margin=0.8)
+                                                 wall_behind, approach=1.0)
     assert reason == "" and versions == (1,)
-    static, moving = obstacles  # disks of RETURN_DEPTH behind each return, the unmapped one grown by the margin
+    static, moving = obstacles  # disks of RETURN_DEPTH behind each return, the unmapped one approaching
     assert static.points == pytest.approx(np.array([[-1.0 - RETURN_DEPTH, 0.0]]), abs=1e-9)
     assert moving.points == pytest.approx(np.array([[0.0, -3.0 - RETURN_DEPTH]]), abs=1e-9)
-    assert (static.margin, moving.margin) == (RETURN_DEPTH, RETURN_DEPTH + 0.8)
+    assert (static.margin, moving.margin) == (RETURN_DEPTH, RETURN_DEPTH)
+    assert (static.approach, moving.approach) == (0.0, 1.0) and moving.received == source.current.received
     assert static.distance(np.array([-0.5, 0.0])) == pytest.approx(0.5)  # the return is the disk's edge
     assert static.distance(np.array([-1.25, 0.0])) < 0  # behind it: inside, a signed distance
     assert STATIC_MATCH < 0.8
@@ -119,9 +120,9 @@ def test_returns_on_the_static_map_keep_no_motion_margin():
     stale = ObservationSource(SourceConfig("scan", timeout=0.01))
     stale.on_message(scan_msg([1.0] * 4))
     time.sleep(0.05)
-    assert "is 0.0" in live_obstacles([stale], time.monotonic(), "map", lambda _: (0, 0, 0), wall_behind, 0.0)[2]
+    assert "is 0.0" in live_obstacles([stale], time.monotonic(), "map", lambda _: (0, 0, 0), wall_behind)[2]
     optional = ObservationSource(SourceConfig("scan", timeout=0.01, required=False))
-    assert live_obstacles([optional], time.monotonic(), "map", lambda _: (0, 0, 0), wall_behind, 0.0)[:2] == \
+    assert live_obstacles([optional], time.monotonic(), "map", lambda _: (0, 0, 0), wall_behind)[:2] == \
         ([], (-1,))
 
 
