@@ -56,14 +56,16 @@ def certificate(params: RobotParams, clearance: Clearance, table=None, epsilon: 
     bound alone: a state the learned table does not reach is judged by the bound that needs no model.
     ``moving``: the clearance now of obstacles that may approach, and their speed u (:func:`braking_value`); W then
     varies in time: ``at(seconds)`` is W for states that many seconds after now, those obstacles u·seconds nearer
-    (``elapsed``: this certificate's seconds after now)."""
-    then = None
-    if moving is not None:
-        near, speed = moving
-        then = ((lambda points: near(points) - speed * elapsed), speed)
+    (``elapsed``: this certificate's seconds after now), and ``over(states, seconds)`` is W for each state that many
+    seconds after this certificate's time, in one lookup."""
 
-    def w(states: np.ndarray) -> np.ndarray:
+    def over(states: np.ndarray, seconds: np.ndarray | float = 0.0) -> np.ndarray:
         states = np.asarray(states, float)
+        then = None
+        if moving is not None:
+            near, speed = moving
+            later = elapsed + np.asarray(seconds, float)[..., None]  # per state, over its braking path's points
+            then = ((lambda points: near(points) - speed * later), speed)
         bound = braking_value(params, clearance, states, moving=then)
         if table is None:
             return bound
@@ -75,9 +77,13 @@ def certificate(params: RobotParams, clearance: Clearance, table=None, epsilon: 
         learned = np.where(table.inside(states), table.value(states) - epsilon, -np.inf)
         return np.maximum(learned, bound)
 
+    def w(states: np.ndarray) -> np.ndarray:
+        return over(states)
+
     if moving is not None:  # what stands still: kept by the rule while W is at or below 0 (filter_least_restrictive)
         w.floor = lambda states: braking_value(params, clearance, np.asarray(states, float))
         w.at = lambda seconds: certificate(params, clearance, table, epsilon, moving, seconds)
+        w.over = over
     return w
 
 
@@ -150,10 +156,15 @@ def ahead(params: RobotParams, settings: FilterSettings, states: np.ndarray, pre
 
 def _three(cert: Certificate, here: np.ndarray, states: np.ndarray, nxt: np.ndarray, delay: float,
            dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """W at the states now, after ``delay`` and one period later; one lookup for a static certificate, three
-    (each at its time) for one that moves (tracked agents)."""
+    """W at the states now, after ``delay`` and one period later; one lookup for a static certificate or one that
+    answers for several times at once (``over``: approaching obstacles), else three, each at its time (tracked
+    agents)."""
     if not hasattr(cert, "at"):
         return tuple(np.split(cert(np.concatenate([here, states, nxt])), 3))
+    if hasattr(cert, "over"):  # one lookup at the three times
+        n = len(here)
+        seconds = np.concatenate([np.zeros(n), np.full(n, delay), np.full(n, delay + dt)])
+        return tuple(np.split(cert.over(np.concatenate([here, states, nxt]), seconds), 3))
     return cert(here), at_time(cert, delay)(states), at_time(cert, delay + dt)(nxt)
 
 

@@ -148,13 +148,13 @@ def _markdown(title: str, rows: list[dict], note: str) -> str:
 
 
 def run(what: str, out: Path, quick: bool = False, only: tuple[str, ...] = (), model: str | None = None,
-        scan_rate: float = 0.0) -> int:
+        scan_rate: float = 0.0, obstacle_speed: float = 0.0) -> int:
     out.mkdir(parents=True, exist_ok=True)
     if what == "node":
         from hjrno_ros.tools import node_bench
 
         return node_bench.run(out, seconds=10.0 if quick else 30.0, model=Path(model) if model else None,
-                              scan_rate=scan_rate)
+                              scan_rate=scan_rate, obstacle_speed_max=obstacle_speed)
     if model:
         raise ValueError("--model is for the node benchmark only")
     if what == "dataset":
@@ -222,7 +222,8 @@ def add_arguments(p) -> None:
     p.add_argument("--episodes", type=int, default=None, help="depot: episodes (200); nav: per case (3); people: (2); "
                    "signals: trials (32)")
     p.add_argument("--scan-rate", type=float, default=0.0, help="node bench: also LaserScans at this rate, Hz")
-    p.add_argument("--obstacle-speed", type=float, default=None, help="people bench: obstacle_speed_max (1.0 m/s)")
+    p.add_argument("--obstacle-speed", type=float, default=None,
+                   help="people bench: obstacle_speed_max (1.0 m/s); node bench with --scan-rate: (0)")
     p.add_argument("--scan-timeout", type=float, default=None, help="people bench: the scan source's timeout (0.5 s)")
     p.add_argument("--agent-table", default=None, help="people bench: the tracked agents' tables (models/agents_ROBOT)")
     p.add_argument("--after-rest-contact", choices=("continue", "end"), default="continue",
@@ -285,4 +286,5 @@ def dispatch(what: str, out: Path, quick: bool = False, only: str | None = None,
                               model=Path(model) if model else None)
     if scan_rate and what != "node":
         raise ValueError("--scan-rate is for the node benchmark only")
-    return run(what, out, quick=quick, only=tuple(only.split(",")) if only else (), model=model, scan_rate=scan_rate)
+    return run(what, out, quick=quick, only=tuple(only.split(",")) if only else (), model=model, scan_rate=scan_rate,
+               obstacle_speed=obstacle_speed or 0.0)

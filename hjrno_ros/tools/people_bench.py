@@ -174,7 +174,7 @@ def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str 
              "after_rest_contact": after_rest_contact}
             for driver_kind in drivers for name in filters]
     write(Path(out), rows, {"episodes_per_case": episodes, "robot": robot_name, "map": map_name, "seconds": seconds,
-                            "model": str(model), "wall_s": round(time.perf_counter() - started)})
+                            "model": _shown(model, ROOT), "wall_s": round(time.perf_counter() - started)})
     progress(f"wrote {Path(out) / results_stem(robot_name, map_name)}.md")
     return int(any(r["collisions_moving"] for r in rows if r["filter"].startswith("brt_node")))
 
@@ -270,6 +270,12 @@ def summarize(driver: str, name: str, with_people: list[PeopleRun], without: lis
         "stopped_share": round(sum(r.result.stopped for r in with_people) / max(steps, 1), 3),
         "fail_closed_share": round(sum(r.result.fail_closed for r in with_people) / max(steps, 1), 4),
     }
+
+
+def _shown(path: str, root: Path) -> str:
+    """``path`` relative to the repository ``root`` when inside it: results files name no machine's paths."""
+    resolved = Path(path).resolve()
+    return str(resolved.relative_to(root.resolve())) if resolved.is_relative_to(root.resolve()) else str(path)
 
 
 def results_stem(robot_name: str, map_name: str) -> str:

@@ -303,6 +303,8 @@ def test_a_certificate_with_approaching_obstacles_varies_in_time():
     states = np.array([[0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.5, 0.0]])
     assert cert.at(0.3)(states) == pytest.approx(cert(states) - 0.3)  # the person 0.3 m nearer
     assert cert.at(0.3).floor(states) == pytest.approx(cert.floor(states))  # what stands still does not move
+    seconds = np.array([0.1, 0.4])  # one lookup for states at different times
+    assert cert.over(states, seconds) == pytest.approx([cert.at(0.1)(states[:1])[0], cert.at(0.4)(states[1:])[0]])
     assert not hasattr(still, "at")
 
 

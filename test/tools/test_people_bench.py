@@ -29,6 +29,7 @@ def test_people_bench_rows_and_no_moving_contact_with_tracked_agents(tmp_path):
     assert rows[("follower", "brt_node+agents")]["scan_timeout"] == 0.5  # the node's scan source, at its default
     assert rows[("follower", "stop_zone")]["scan_timeout"] is None  # no node, no scan source
     assert {r["after_rest_contact"] for r in rows.values()} == {"continue"}  # people walk on by default
+    assert report["model"] == "models/default"  # no machine's path in a results file
     assert people_bench.results_stem("turtlebot3", "depot") == "people_turtlebot3_depot"
     assert people_bench.results_stem("jackal", people_bench.DEFAULT_MAP) == "people"
     with pytest.raises(ValueError, match="filters"):
