@@ -160,8 +160,9 @@ def run(out: Path, seconds: float = 30.0, model: Path | None = None, scan_rate: 
             + (f" With a LaserScan observation source at {scan_rate:g} Hz (720 beams, walls and a person who moves): "
                "scan_to_table_* is the node's own time from a scan's receipt to the value table made with it, over "
                f"the last 200 scans (target p95 <= {SCAN_TARGET_MS:g} ms)." if scan_rate > 0 else "")
-            + (f" obstacle_speed_max {obstacle_speed_max:g} m/s: returns off the map may approach, the certificate "
-               "varies in time (three lookups a command)." if scan_rate > 0 and obstacle_speed_max > 0 else ""))
+            + (f" obstacle_speed_max {obstacle_speed_max:g} m/s: returns off the map may approach, and the "
+               "certificate varies in time (one batched lookup at three times a command)."
+               if scan_rate > 0 and obstacle_speed_max > 0 else ""))
     keys = list(row)
     lines = ["# Node benchmark", "", note, "", *records_table([row], keys)]
     name = ("node_scan" + ("_moving" if obstacle_speed_max > 0 else "")) if scan_rate > 0 else "node"
