@@ -3,7 +3,7 @@
     hjrno solve --scenario disk|room|indoor|air3d [--robot paper|product|diff_drive] [--grid 40,40,12,20] [--out DIR]
     hjrno generate --experiment NAME [--config FILE] [--out DIR] [--shard K/N] [--workers W]
     hjrno merge | show | train | ensemble | export-onnx | evaluate | calibrate | simulate | demo   (see --help)
-    hjrno bench solver|dataset|node|fuzz|depot|nav|people|signals|soak [--out DIR]
+    hjrno bench solver|dataset|node|fuzz|depot|nav|people|tracker|signals|soak [--out DIR]
     hjrno agents --robot jackal|turtlebot3 [--out STEM]   (value tables against a moving person)
 
 Results tables (evaluate, simulate, bench) go to ``out/bench`` unless ``--out`` says otherwise.

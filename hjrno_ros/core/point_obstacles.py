@@ -16,6 +16,7 @@ import numpy as np
 from pykdtree.kdtree import KDTree
 
 Pose2 = tuple[float, float, float]
+STATIC_MATCH = 0.15  # m: scan returns this close to a static-map obstacle are that obstacle (localisation, cells)
 
 
 def scan_points(ranges: np.ndarray, angle_min: float, angle_increment: float, range_min: float,

@@ -212,7 +212,8 @@ def write_table(out: Path, stem: str, title: str, rows: list[dict], note: str) -
 
 def add_arguments(p) -> None:
     """``hjrno bench``'s arguments (an argparse parser)."""
-    p.add_argument("what", choices=["solver", "dataset", "node", "fuzz", "depot", "nav", "people", "signals", "soak"])
+    p.add_argument("what", choices=["solver", "dataset", "node", "fuzz", "depot", "nav", "people", "tracker",
+                                       "signals", "soak"])
     p.add_argument("--out", default="out/bench", help="results folder (default: out/bench)")
     p.add_argument("--quick", action="store_true", help="smallest case only (smoke run)")
     p.add_argument("--only", default=None, help="dataset bench: families; solver bench: problems (comma-separated)")
@@ -220,7 +221,7 @@ def add_arguments(p) -> None:
     p.add_argument("--seconds", type=float, default=None, help="fuzz: seconds (180); soak: (1800); depot, nav, people: "
                    "per episode")
     p.add_argument("--episodes", type=int, default=None, help="depot: episodes (200); nav: per case (3); people: (2); "
-                   "signals: trials (32)")
+                   "tracker: (4); signals: trials (32)")
     p.add_argument("--scan-rate", type=float, default=0.0, help="node bench: also LaserScans at this rate, Hz")
     p.add_argument("--obstacle-speed", type=float, default=None,
                    help="people bench: obstacle_speed_max (1.0 m/s); node bench with --scan-rate: (0)")
@@ -231,7 +232,7 @@ def add_arguments(p) -> None:
                    "(continue, the default), or the episode ends (end)")
     for name in ("robots", "maps", "drivers", "filters"):  # nav_bench.ROBOTS, MAPS, DRIVERS, FILTERS
         p.add_argument(f"--{name}", default=None, help=f"nav bench: comma-separated {name} (default: all); people "
-                       "bench: its filters and drivers, one robot and one map")
+                       "bench: its filters and drivers, one robot and one map; tracker bench: its maps")
 
 
 def dispatch_args(args) -> int:
@@ -266,6 +267,11 @@ def dispatch(what: str, out: Path, quick: bool = False, only: str | None = None,
                                 filters=tuple(chosen.split(",")) if chosen else people_bench.FILTERS,
                                 agent_table=agent_table, scan_timeout=scan_timeout or people_bench.SCAN_TIMEOUT,
                                 after_rest_contact=after_rest_contact)
+    if what == "tracker":
+        from hjrno_ros.tools import tracker_bench
+
+        maps = (select or {}).get("maps")
+        return tracker_bench.run(out, episodes=episodes or 4, **({"maps": tuple(maps.split(","))} if maps else {}))
     if what == "soak":
         from hjrno_ros.tools import soak_bench
 

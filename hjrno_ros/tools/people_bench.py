@@ -6,9 +6,10 @@ of its goals: :func:`turning_points`), two between random points of the map. The
 robot's drivers (the Nav2-like follower and the careless driver of the navigation benchmark) are blind to them;
 ``--drivers replanning`` adds the follower that plans around its LiDAR's returns every second, as Nav2's does.
 ``brt_node`` gets the static map and IR-SIM's LiDAR as a ``scan`` observation source at 10 Hz
-(``obstacle_speed_max`` its default, 1 m/s); ``brt_node+agents`` also gets the pedestrians as tracked agents (a
-perfect tracker: IR-SIM's positions and velocities, PointCloud2 at 10 Hz) with the robot's relative value tables
-(docs/design.md, "Tracked agents"). The baseline ``stop_zone`` is collision_monitor's stop polygon and approach
+(``obstacle_speed_max`` its default, 1 m/s); ``brt_node+tracker``'s scan source also tracks people on its returns
+(``track_people``: core/scan_tracker.py); ``brt_node+agents`` gets the pedestrians as tracked agents instead (a
+perfect tracker: IR-SIM's positions and velocities, PointCloud2 at 10 Hz); both with the robot's relative value
+tables (docs/design.md, "Tracked agents"). The baseline ``stop_zone`` is collision_monitor's stop polygon and approach
 model, seeing the people exactly. Each case also runs without people, so that goals and time to goal compare with
 the same episodes on an empty floor.
 
@@ -98,7 +99,8 @@ def people_for(nav_map: nav.NavMap, robot: nav.Robot, episode: nav.Episode, seed
     return tuple(far)
 
 
-FILTERS = ("none", "stop_zone", "brt_node", "brt_node+agents")
+FILTERS = ("none", "stop_zone", "brt_node", "brt_node+tracker", "brt_node+agents")
+TABLES = ("brt_node+tracker", "brt_node+agents")  # the filters that read the agent tables
 DRIVERS = ("follower", "careless", "replanning")  # replanning: the follower with the LiDAR in its planner's costmap
 BLIND = ("follower", "careless")  # the default: drivers blind to people
 
@@ -132,7 +134,7 @@ def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str 
     model = model or str(ROOT / "models" / "default")
     seconds = seconds or DURATION[robot_name]
     agent_table = agent_table or str(ROOT / "models" / f"agents_{robot_name}")
-    deviation = read_agent_table(agent_table).deviation if "brt_node+agents" in filters else None
+    deviation = read_agent_table(agent_table).deviation if set(TABLES) & set(filters) else None
     robot = nav.ROBOTS[robot_name]
     nav_map = nav_map_named(map_name)
     sd = nav_map.sd
@@ -168,8 +170,8 @@ def run(out: Path, episodes: int = 2, robot_name: str = "jackal", map_name: str 
                              f"{sum(r.rest_contacts for r in results)} people walked on "
                              f"({time.perf_counter() - t0:.0f} s)")
     rows = [{**summarize(driver_kind, name, runs[(driver_kind, name, True)], runs[(driver_kind, name, False)]),
-             "obstacle_speed_max": obstacle_speed_max if name == "brt_node" else None,
-             "agent_deviation": deviation if name == "brt_node+agents" else None,
+             "obstacle_speed_max": obstacle_speed_max if name in ("brt_node", "brt_node+tracker") else None,
+             "agent_deviation": deviation if name in TABLES else None,
              "scan_timeout": scan_timeout if name.startswith("brt_node") else None,
              "after_rest_contact": after_rest_contact}
             for driver_kind in drivers for name in filters]
@@ -198,6 +200,8 @@ def _filter_runner(name: str, nav_map: nav.NavMap, robot: nav.Robot, sd: np.ndar
               "obstacle_speed_max": obstacle_speed_max, "scan.timeout": scan_timeout}
     if tracked:
         params |= {"people.type": "agents", "people.topic": AGENTS_TOPIC, "agent_table": agent_table}
+    if name == "brt_node+tracker":
+        params |= {"scan.track_people": True, "agent_table": agent_table}
     domain = free_domain()
     with brt_node_process(domain, params, model) as (proc, tail):
         def over_dds(w, driver, e):
@@ -309,7 +313,8 @@ def write(out: Path, rows: list[dict], run: dict) -> None:
             "0.5-1.0 m/s (2 on the robot's route against it, turning short of its goals), IR-SIM's LiDAR at 10 Hz as "
             "brt_node's scan source (obstacle_speed_max and scan_timeout per row: the motion margin of returns off "
             "the map covers that speed over the stop, the latency and the timeout); "
-            "brt_node+agents also gets the "
+            "brt_node+tracker's scan source tracks people on its returns (track_people: confirmed tracks are "
+            "tracked agents, the rest keep the margin); brt_node+agents also gets the "
             "pedestrians' true positions and velocities at 10 Hz as a tracked-agents source (relative value tables "
             "solved for agents deviating from their velocity by agent_deviation m/s; their returns keep no margin); "
             "stop_zone is collision_monitor's stop polygon and approach model with the "

@@ -158,7 +158,8 @@ class BrtNode(LifecycleNode):
             raise StartupError(str(err)) from None
         self._apply_settings(cfg)
         self.maps = MapInput(cfg.map_topic)
-        self.sources = [ObservationSource(source) for source in cfg.sources]  # like the map: kept across activations
+        # like the map, kept across activations; a tracking scan's tracks are agents of the agent table
+        self.sources = [ObservationSource(source, self.agent_table) for source in cfg.sources]
         self._reset()
         self._create_interfaces(cfg)
         self.configured = True
@@ -309,7 +310,8 @@ class BrtNode(LifecycleNode):
             ("value", lambda: self.values.get(now, cfg.value_timeout)),
         ]
         if self.agent_table is not None:  # tracked agents: the fresh ones (a stale required source fails closed)
-            sources.append(("agents", lambda: fresh_agents(self.sources, now, data["map"].frame_id)))
+            sources.append(("agents", lambda: fresh_agents(self.sources, now, data["map"].frame_id,
+                                                           held=data["value"].tracks)))
             sources.append(("tracked", lambda: (None, lost_agents(self.sources, data["value"].sources_version, now))))
         if self.settings.mode != "least_restrictive":  # these modes read V at the state itself
             sources.append(("value", lambda: self.values.covers(data["value"], data["state"])))

@@ -33,8 +33,9 @@ import numpy as np
 from nav_msgs.msg import OccupancyGrid
 from sensor_msgs.msg import LaserScan, PointCloud2, PointField
 
-from hjrno_ros.core.point_obstacles import PointObstacles, Pose2, behind, scan_points, transform
-from hjrno_ros.core.tracked_agents import Agents
+from hjrno_ros.core.point_obstacles import STATIC_MATCH, PointObstacles, Pose2, behind, scan_points, transform
+from hjrno_ros.core.scan_tracker import ScanTracker, TrackerSettings
+from hjrno_ros.core.tracked_agents import Agents, AgentTable
 from hjrno_ros.ros.brt_node.inputs import MapRejected, parse_map
 from hjrno_ros.ros.brt_node.messages import finite
 from hjrno_ros.ros.brt_node.parameters import Param
@@ -53,10 +54,12 @@ SOURCE_PARAMETERS: dict[str, Param] = {
                                           "odometry's child frame)", read_only=True),
     "cost_threshold": Param(99, "costmap: cost >= threshold is an obstacle (99: Nav2's inscribed cost)", 0, 100,
                             read_only=True),
-    "agent_radius": Param(0.2, "agents: m, an agent's radius when the cloud has no radius field", 0.01, 5.0,
-                          read_only=True),
+    "agent_radius": Param(0.2, "agents: m, an agent's radius when the cloud has no radius field; scan with "
+                               "track_people: a person's radius", 0.01, 5.0, read_only=True),
+    "track_people": Param(False, "scan: follow the returns off the static map from scan to scan; confirmed tracks "
+                                 "are tracked agents (needs agent_table), the rest keep the motion margin "
+                                 "(core/scan_tracker.py)", read_only=True),
 }
-STATIC_MATCH = 0.15  # m: scan returns this close to a static-map obstacle are that obstacle (localisation, cells)
 RETURN_DEPTH = 0.2  # m: a scan return is the near edge of a disk this wide in radius behind it (a person's torso)
 AGENT_MATCH = 0.3  # m: a return or cell this far beyond a tracked agent's disk is that agent (tracking, timing)
 AGENT_FIELDS = ("x", "y", "vx", "vy")  # an agents cloud's required fields; "radius" is optional
@@ -76,6 +79,7 @@ class SourceConfig:
     sensor_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)
     cost_threshold: int = 99
     agent_radius: float = 0.2
+    track_people: bool = False
 
     @classmethod
     def build(cls, name: str, values: dict[str, Any]) -> SourceConfig | str:
@@ -96,8 +100,10 @@ class SourceConfig:
         radius, spec = v["agent_radius"], SOURCE_PARAMETERS["agent_radius"]
         if isinstance(radius, bool) or not isinstance(radius, int | float) or not spec.lo <= radius <= spec.hi:
             return f"{name}.agent_radius must lie in [{spec.lo:g}, {spec.hi:g}] m, got {radius!r}"
+        if v["track_people"] and v["type"] != "scan":
+            return f"{name}.track_people is for scan sources, {name} is a {v['type']} source"
         return cls(name, str(v["type"]), str(v["topic"] or name), float(timeout), bool(v["required"]),
-                   tuple(float(x) for x in pose), int(v["cost_threshold"]), float(radius))
+                   tuple(float(x) for x in pose), int(v["cost_threshold"]), float(radius), bool(v["track_people"]))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -187,13 +193,23 @@ def parse_agents(msg: PointCloud2, radius: float) -> tuple[np.ndarray, np.ndarra
 class ObservationSource:
     """One source: ``on_message`` validates and stores (executor), ``get`` answers data or a reason."""
 
-    def __init__(self, config: SourceConfig) -> None:
+    def __init__(self, config: SourceConfig, agent_table: AgentTable | None = None) -> None:
+        """``agent_table``: with ``track_people``, what the tracks are read with (:meth:`track`)."""
         self.config = config
         self._lock = threading.Lock()
         self.current: Observation | None = None
         self.rejected = 0
         self.error = ""
         self._version = 0
+        self.tracker: ScanTracker | None = None  # track_people: with the agent tables' settings
+        self.tracked: tuple[int, Agents, np.ndarray] | None = None  # (scan version, its agents, their returns)
+        if config.track_people and agent_table is not None:
+            self.track(agent_table)
+
+    def track(self, table: AgentTable) -> None:
+        """Follow people on this scan source's returns, as agents of the tables ``table`` (the value worker feeds the
+        tracker: :func:`update_trackers`)."""
+        self.tracker, self.tracked = ScanTracker(TrackerSettings.for_table(table, self.config.agent_radius)), None
 
     def on_message(self, msg: Any) -> str | None:
         """Take a message; the rejection reason, or None."""
@@ -234,14 +250,27 @@ class ObservationSource:
                "rejected": self.rejected, "last_error": self.error}
         if self.config.type == "agents":
             out["agents"] = out["points"]
+        elif self.tracker is not None:
+            out["agents"] = len(self.tracked[1]) if self.tracked else 0
+            out["tracks"] = len(self.tracker.tracks)
         return out
 
 
-def fresh_agents(sources: list[ObservationSource], now: float, map_frame: str) -> tuple[Agents | None, str]:
-    """The fresh ``agents`` sources' agents merged (None without any), or why a source is unusable: a required one
-    stale or missing, any in another frame than the map's (no tf2).  A stale optional source is left out."""
-    parts = []
+def fresh_agents(sources: list[ObservationSource], now: float, map_frame: str, scans: bool = True,
+                 held: tuple[Agents, ...] = ()) -> tuple[Agents | None, str]:
+    """The fresh ``agents`` sources' agents and (``scans``) the fresh tracking scans' confirmed tracks merged (None
+    without any), or why a source is unusable: a required one stale or missing, any in another frame than the
+    map's (no tf2).  A stale optional source is left out.  ``held``: the tracks a value table was made with
+    (``ValueData.tracks``), kept beside newer ones: the table left their returns without the margin, and a tracker
+    that moved on since may no longer vouch for them."""
+    parts = [*held]
     for source in sources:
+        if source.tracker is not None:  # a scan's tracks, in the map frame; a stale scan is the scan's check's
+            data, _ = source.get(now)
+            newer = source.tracked is not None and not any(a is source.tracked[1] for a in held)
+            if scans and data is not None and newer:
+                parts.append(source.tracked[1])
+            continue
         if source.config.type != "agents":
             continue
         data, reason = source.get(now)
@@ -257,10 +286,12 @@ def fresh_agents(sources: list[ObservationSource], now: float, map_frame: str) -
 
 def lost_agents(sources: list[ObservationSource], versions: tuple[int, ...], now: float) -> str:
     """Why a value table made from the sources' data ``versions`` cannot be used ("" if it can): it left an agents
-    source's people without the motion margin, and that (optional) source has gone stale since."""
+    source's (or a scan's tracked) people without the motion margin, and that (optional) source has gone stale
+    since."""
     for k, source in enumerate(sources):
         made_with = k < len(versions) and versions[k] >= 0
-        if source.config.type == "agents" and made_with and source.get(now)[0] is None:
+        agents = source.config.type == "agents" or source.tracker is not None
+        if agents and made_with and source.get(now)[0] is None:
             return f"value table made with the agents of '{source.config.name}', which are now stale"
     return ""
 
@@ -284,6 +315,42 @@ def tracked(points: np.ndarray, agents: Agents | None, now: float) -> np.ndarray
     return (gaps <= (agents.radii + AGENT_MATCH)[:, None]).any(0)
 
 
+def scan_in_map(source: ObservationSource, data: Observation, pose_at: Callable[[int], Pose2 | None]
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | str:
+    """A scan's returns and the centres of the disks behind them in the map frame, placed with the robot's pose at
+    the scan's stamp, and the sensor's position then; or why they cannot be placed."""
+    pose = pose_at(data.stamp_ns)
+    if pose is None:
+        return f"observation source '{source.config.name}': no robot pose at the scan's stamp"
+    sensor = source.config.sensor_pose
+    seen = transform(transform(data.points, sensor), pose)
+    centres = transform(transform(behind(data.points, RETURN_DEPTH), sensor), pose)
+    return seen, centres, transform(np.asarray(sensor[:2], float), pose)
+
+
+def update_trackers(sources: list[ObservationSource], now: float, pose_at: Callable[[int], Pose2 | None],
+                    static_distance: Callable[[np.ndarray], np.ndarray]) -> None:
+    """Feed each tracking scan source's newest scan, once, to its tracker: the returns off the static map (farther
+    than STATIC_MATCH from its obstacles), in the map frame.  A scan without a pose at its stamp is skipped (the
+    value worker's :func:`live_obstacles` reports it); one the tracker refuses (stamped no later than the last)
+    leaves no tracks, so its returns keep the margin."""
+    for source in sources:
+        data, _ = source.get(now)
+        if source.tracker is None or data is None or (source.tracked and source.tracked[0] == data.version):
+            continue
+        placed = scan_in_map(source, data, pose_at)
+        if isinstance(placed, str):
+            continue
+        seen, _, sensor = placed
+        off_map = np.nonzero(static_distance(seen) > STATIC_MATCH)[0] if len(seen) else np.zeros(0, int)
+        if not source.tracker.update(seen[off_map], sensor, data.stamp_ns * 1e-9, data.received):
+            source.tracked = None  # a duplicate or reordered scan: its returns keep the margin
+            continue
+        theirs = np.zeros(len(seen), bool)
+        theirs[off_map[source.tracker.confirmed_returns()]] = True
+        source.tracked = (data.version, source.tracker.agents(), theirs)
+
+
 def live_obstacles(sources: list[ObservationSource], now: float, map_frame: str,
                    pose_at: Callable[[int], Pose2 | None], static_distance: Callable[[np.ndarray], np.ndarray],
                    agents: Agents | None = None, approach: float = 0.0
@@ -291,9 +358,10 @@ def live_obstacles(sources: list[ObservationSource], now: float, map_frame: str,
     """The fresh sources' obstacles in the map frame as disks, marked as approaching at ``approach`` m/s since their
     data arrived (:class:`PointObstacles`; the users grow them) where they are neither the static map (what lies
     within STATIC_MATCH of a static obstacle is that obstacle, which the map already holds) nor a tracked agent in
-    ``agents`` (:func:`fresh_agents`; its own value covers its motion); the sources' data versions (an agents
-    source's too, so that new agents make a new table); and the reason a required source is unusable ("" if
-    none).  Agents sources add no disks."""
+    ``agents`` (the agents sources': :func:`fresh_agents` with ``scans`` False) nor a return of the scan's own
+    confirmed tracks (:func:`update_trackers`): an agent's own value covers its motion.  Also the sources' data
+    versions (an agents source's too, so that new agents make a new table) and the reason a required source is
+    unusable ("" if none).  Agents sources add no disks."""
     out, versions = [], []
     for source in sources:
         data, reason = source.get(now)
@@ -307,18 +375,18 @@ def live_obstacles(sources: list[ObservationSource], now: float, map_frame: str,
         if source.config.type == "agents":
             continue
         if source.config.type == "scan":  # returns, and disks behind them, placed with the pose at the scan's time
-            pose = pose_at(data.stamp_ns)
-            if pose is None:
-                return [], (), f"observation source '{name}': no robot pose at the scan's stamp"
-            sensor = source.config.sensor_pose
-            seen = transform(transform(data.points, sensor), pose)
-            centres, radius = transform(transform(behind(data.points, RETURN_DEPTH), sensor), pose), RETURN_DEPTH
+            placed = scan_in_map(source, data, pose_at)
+            if isinstance(placed, str):
+                return [], (), placed
+            (seen, centres, _), radius = placed, RETURN_DEPTH
         elif data.frame_id != map_frame:
             return [], (), f"observation source '{name}' frame '{data.frame_id}' != map frame '{map_frame}' (no tf2)"
         else:  # costmap cells: disks of their half diagonal around their centres
             seen, centres, radius = data.points, data.points, data.margin
         static = static_distance(seen) <= STATIC_MATCH + data.margin if len(seen) else np.zeros(0, bool)
         kept = static | tracked(seen, agents, now)
+        if source.tracked is not None and source.tracked[0] == data.version:  # its own confirmed tracks' returns
+            kept |= source.tracked[2]
         out += [PointObstacles(centres[kept], radius),
                 PointObstacles(centres[~kept], radius, approach, data.received)]
     return out, tuple(versions), ""

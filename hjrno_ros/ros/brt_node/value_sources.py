@@ -63,6 +63,8 @@ def load_agent_table(cfg: NodeConfig, robot: Any) -> AgentTable | None:
     if not cfg.agent_table:
         if any(source.type == "agents" for source in cfg.sources):
             raise ValueError("an 'agents' observation source needs the agent_table parameter (hjrno agents makes one)")
+        if any(source.track_people for source in cfg.sources):
+            raise ValueError("a scan source with track_people needs the agent_table parameter (hjrno agents makes one)")
         return None
     stem = resolve_model(cfg.agent_table)
     table = read_agent_table(stem)

@@ -29,10 +29,16 @@ from hjrno_ros.core import geometry
 from hjrno_ros.core.braking import Clearance
 from hjrno_ros.core.grids import wrap_angle
 from hjrno_ros.core.point_obstacles import PointObstacles
+from hjrno_ros.core.tracked_agents import Agents
 from hjrno_ros.core.value_source import ValueSource
 from hjrno_ros.ros.brt_node.config import NodeConfig
 from hjrno_ros.ros.brt_node.inputs import MapData, MapInput, RobotState, StateInput
-from hjrno_ros.ros.brt_node.observation_sources import ObservationSource, fresh_agents, live_obstacles
+from hjrno_ros.ros.brt_node.observation_sources import (
+    ObservationSource,
+    fresh_agents,
+    live_obstacles,
+    update_trackers,
+)
 from hjrno_ros.ros.brt_node.parameters import obstacle_threshold
 from hjrno_ros.ros.brt_node.refinement import Refinement
 
@@ -55,6 +61,7 @@ class ValueData:
     horizon: float = 0.0  # refined: simulated s of solver behind the table
     obstacles: tuple[PointObstacles, ...] = ()  # the live sources' obstacles the table was made with
     sources_version: tuple[int, ...] = ()  # their data versions
+    tracks: tuple[Agents, ...] = ()  # the tracking scans' agents whose returns the table left without the margin
 
 
 def table_state(state: RobotState, table_theta: float, v_lo: float, v_hi: float) -> np.ndarray:
@@ -213,16 +220,19 @@ class ValueWorker:
     def live_obstacles(self, m: MapData, state: RobotState, now: float
                        ) -> tuple[tuple[PointObstacles, ...], tuple[int, ...], str]:
         """The fresh sources' obstacles in the map frame, their versions, or why a required source is unusable.
-        What a fresh agents source tracks is not grown by the motion margin: the node's certificate holds each
-        agent's own value (an agents source needs the agent table)."""
+        What a fresh agents source tracks, or a tracking scan's confirmed tracks, is not grown by the motion margin:
+        the node's certificate holds each agent's own value (both need the agent table).  Tracking scans are fed to
+        their trackers first."""
         if not self.sources:
             return (), (), ""
-        agents, reason = fresh_agents(self.sources, now, m.frame_id)
+        pose_at = lambda stamp: self.states.pose_at(stamp, state)  # noqa: E731
+        static_distance = lambda pts: map_distance(m, pts)  # noqa: E731
+        update_trackers(self.sources, now, pose_at, static_distance)
+        agents, reason = fresh_agents(self.sources, now, m.frame_id, scans=False)
         if reason:
             return (), (), reason
-        obstacles, versions, reason = live_obstacles(
-            self.sources, now, m.frame_id, lambda stamp: self.states.pose_at(stamp, state),
-            lambda pts: map_distance(m, pts), agents, self.cfg().obstacle_speed_max)
+        obstacles, versions, reason = live_obstacles(self.sources, now, m.frame_id, pose_at, static_distance, agents,
+                                                     self.cfg().obstacle_speed_max)
         return tuple(obstacles), versions, reason
 
     def v0(self, m: MapData, points: np.ndarray) -> np.ndarray:
@@ -281,8 +291,10 @@ class ValueWorker:
                 "source": "refined" if refined else "operator"}
         previous = self.value.sources_version if self.value is not None else ()
         new_map = m.version != getattr(self.value, "map_version", None) and m.version != self.maps.recomputed_version
+        tracks = tuple(s.tracked[1] for s, version in zip(self.sources, versions, strict=True)
+                       if s.tracked is not None and s.tracked[0] == version)
         self.value = ValueData(table, center, v, state.theta, time.monotonic(), m.version, latency, info,
-                               info["source"], refined.horizon if refined else 0.0, obstacles, versions)
+                               info["source"], refined.horizon if refined else 0.0, obstacles, versions, tracks)
         self._record_reaction(versions, previous)
         if new_map:
             self.map_reaction_s.append(time.monotonic() - m.received)

@@ -543,11 +543,14 @@ def test_node_process_runs_without_jax_takes_integer_floats_and_stops_cleanly(mo
             assert "Traceback" not in log and "ERROR" not in log and "inference failed" not in log, log
 
 
-def test_docs_parameter_table_is_current():
-    """docs/node.md's parameter table is generated from the node's declarations."""
+def test_docs_parameter_tables_are_current():
+    """docs/node.md's parameter tables, the node's and each observation source's, are generated from the node's
+    declarations."""
+    from hjrno_ros.ros.brt_node.observation_sources import SOURCE_PARAMETERS
     from hjrno_ros.ros.brt_node.parameters import markdown_table
 
-    assert markdown_table() in (ROOT / "docs" / "node.md").read_text()
+    text = (ROOT / "docs" / "node.md").read_text()
+    assert markdown_table() in text and markdown_table(SOURCE_PARAMETERS) in text
 
 
 # ------------------------------------------------------------------ the node's contract over DDS

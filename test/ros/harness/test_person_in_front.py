@@ -2,8 +2,9 @@
 drives straight for a goal 9 m away at up to 1 m/s (a careless driver, blind to people), a pedestrian (IR-SIM's
 social-force walker, 1 m/s) crosses its path 3 m ahead, timed so that the driver alone runs into them at 1 m/s, and
 brt_node (its own process, the bundled default, the
-static map plus IR-SIM's LiDAR as a ``scan`` source at 10 Hz, ``obstacle_speed_max`` 1 m/s; with ``tracked`` also
-the walker as a tracked agent, its true position and velocity at 10 Hz, and the Jackal's relative value tables)
+static map plus IR-SIM's LiDAR as a ``scan`` source at 10 Hz, ``obstacle_speed_max`` 1 m/s; ``tracking``: the
+scan source follows people on its returns, as agents of the Jackal's relative value tables; ``agents``: also the
+walker as a tracked agent, its true position and velocity at 10 Hz)
 filters the commands. The robot never moves into the person (IR-SIM's own collision check), and it still gets on
 with its way."""
 
@@ -30,8 +31,9 @@ def room() -> nav.NavMap:
     return nav.NavMap("room", obstacles, (0.0, 0.0), 0.05)
 
 
-@pytest.mark.parametrize("tracked", [False, True], ids=["scan", "scan_and_tracked_agents"])
-def test_a_person_stepping_in_front_is_not_hit_and_the_robot_goes_on(tracked):
+@pytest.mark.parametrize("people", ["none", "tracking", "agents"],
+                         ids=["scan", "scan_tracking_people", "scan_and_tracked_agents"])
+def test_a_person_stepping_in_front_is_not_hit_and_the_robot_goes_on(people):
     from hjrno_ros.ros.harness.irsim_base import drive, episode_result, irsim_base
     from hjrno_ros.studies.irsim_world import DiffDriveBase, IrSimWorld, Person
     from hjrno_ros.tools.nav_bench import node_params
@@ -56,9 +58,12 @@ def test_a_person_stepping_in_front_is_not_hit_and_the_robot_goes_on(tracked):
     world, driver = world_and_driver(lidar=True)
     domain = free_domain()
     params = {**node_params(robot), "observation_sources": "[scan]", "obstacle_speed_max": 1.0}
+    tracked = people == "agents"
     if tracked:
         params |= {"observation_sources": "[scan, people]", "people.type": "agents", "people.topic": "tracked_agents",
                    "agent_table": "agents_jackal"}
+    if people == "tracking":
+        params |= {"scan.track_people": True, "agent_table": "agents_jackal"}
 
     def ready(log) -> bool:
         at = log.status.get("robot") or {}
