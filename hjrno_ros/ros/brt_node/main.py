@@ -16,6 +16,9 @@ import sys
 _interrupted = False
 _starting = True  # no node yet: an interrupt ends the process at once
 SPIN_WAKE_S = 0.2  # s: the longest the executor waits, so an interrupt is handled within it in any state
+# s: the command callback and the value worker share the GIL. A thread that wants it waits until the holder lets
+# go or the switch interval forces a switch: CPython's default, 5 ms, is the whole command budget.
+GIL_SWITCH_S = 0.0005
 
 
 def _interrupt(signum: int, frame: object) -> None:
@@ -34,6 +37,7 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, _interrupt)
     # pykdtree's OpenMP and numpy's OpenBLAS read it: one thread each, no pool spinning beside the command path
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    sys.setswitchinterval(GIL_SWITCH_S)
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
