@@ -27,6 +27,7 @@ import numpy as np
 from hjrno_ros.core.tracked_agents import Agents, AgentTable
 
 ARC_CENTRE = math.pi / 4  # beams evenly spread over a disk hit it on average this many radii in front of its centre
+LEAST_FIT = 3  # observations a velocity is fitted to at least (two always fit a line), whatever the scan rate
 
 
 @dataclasses.dataclass(frozen=True)
@@ -83,7 +84,8 @@ def detections(points: np.ndarray, sensor: np.ndarray, s: TrackerSettings
 
 @dataclasses.dataclass
 class Track:
-    """One object's observations within the window: times (s), centres and radii (m); its constant-velocity fit."""
+    """One object's observations within the window (at least LEAST_FIT): times (s), centres and radii (m); its
+    constant-velocity fit."""
 
     times: list[float]
     centres: list[np.ndarray]
@@ -108,7 +110,8 @@ class Track:
         self.centres.append(centre)
         self.radii.append(radius)
         self.hits += 1
-        keep = [k for k, tk in enumerate(self.times) if tk >= t - window - 1e-9]
+        n = len(self.times)  # the window's, and at least LEAST_FIT (a slow laser)
+        keep = [k for k, tk in enumerate(self.times) if tk >= t - window - 1e-9 or k >= n - LEAST_FIT]
         self.times, self.centres, self.radii = ([x[k] for k in keep] for x in (self.times, self.centres, self.radii))
         self.position, self.velocity, self.residual = fit_recent(np.array(self.times), np.array(self.centres),
                                                                  max_residual)
@@ -126,7 +129,7 @@ def fit(times: np.ndarray, centres: np.ndarray) -> tuple[np.ndarray, np.ndarray,
     return line[-1], velocity, residual
 
 
-def fit_recent(times: np.ndarray, centres: np.ndarray, max_residual: float, least: int = 3
+def fit_recent(times: np.ndarray, centres: np.ndarray, max_residual: float, least: int = LEAST_FIT
                ) -> tuple[np.ndarray, np.ndarray, float]:
     """:func:`fit` to the most recent observations that fit within ``max_residual`` (at least ``least`` of them):
     after a turn the observations before it are dropped, so the track is vouched for again with the new velocity
@@ -186,7 +189,7 @@ class ScanTracker:
     def confirmed(self, track: Track) -> bool:
         """A track the tracker vouches for: seen often enough, fitting a constant velocity, within the tables."""
         s = self.settings
-        return (track.hits >= s.confirm and len(track.times) >= 2 and track.residual <= s.max_residual
+        return (track.hits >= s.confirm and len(track.times) >= LEAST_FIT and track.residual <= s.max_residual
                 and float(np.hypot(*track.velocity)) <= s.speed_max)
 
     def confirmed_returns(self) -> np.ndarray:

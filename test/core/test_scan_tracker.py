@@ -127,3 +127,12 @@ def test_a_duplicate_scan_is_refused_and_a_restarted_clock_starts_the_tracks_ove
     assert len(tracker.agents()) == 1 and len(tracker.confirmed_returns()) == len(laser([((2.0, 0.25), RADIUS)]))
     assert tracker.update(laser([((-1.0, 1.0), RADIUS)]), np.zeros(2), 0.0, 9.0)  # the clock restarted
     assert len(tracker.tracks) == 1 and tracker.tracks[0].hits == 1 and len(tracker.agents()) == 0
+
+
+def test_a_slow_laser_still_fits_three_observations():
+    tracker = ScanTracker()
+    for k in range(5):  # 4 Hz: two scans in the 0.4 s window, where any two fit a line
+        t = 0.25 * k
+        y = 0.5 * t + (0.12 if k == 4 else 0.0)  # the last one off the walk
+        tracker.update(laser([((2.0, y), RADIUS)]), np.zeros(2), t, t)
+    assert len(tracker.tracks[0].times) == 3 and len(tracker.agents()) == 0
